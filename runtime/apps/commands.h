@@ -1,0 +1,30 @@
+// Subcommands of `hrt`. Each register_* adds one subcommand to the app and
+// sets its callback; the callback returns through hrt::Exit (exit code) so
+// main can map user errors to clean one-line messages.
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <stdexcept>
+#include <string>
+
+namespace hrt_cli {
+
+// Exit codes of `hrt` (documented in the README).
+enum ExitCode : int {
+  kOk = 0,
+  kUsage = 2,         // bad option or argument
+  kBundle = 3,        // a bundle failed to load (io, version, schema, hash, mesh, atlas, pieces)
+  kInternal = 70,     // a bug: please report
+};
+
+// Thrown by a subcommand to end with a specific exit code and one message line.
+struct Exit : std::runtime_error {
+  int code;
+  Exit(int c, const std::string& msg) : std::runtime_error(msg), code(c) {}
+};
+
+void register_check(CLI::App& app);  // hrt check BUNDLE: load, verify, summarize
+void register_query(CLI::App& app);  // hrt query A B --pose-a ... --pose-b ...
+void register_bench(CLI::App& app);  // hrt bench
+
+}  // namespace hrt_cli
