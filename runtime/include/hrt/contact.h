@@ -1,0 +1,71 @@
+// Contact patches and the texture force model (paper Sec. 3.3, 4, 5).
+//
+// Data flow of one frame:
+//   (poses, Models) --collision--> piece pairs --clustering--> ContactPatch
+//   (geometry: p_a, p_b, n, u, v, window, triangle lists)
+//   --depth (Eq. 8-9) at 11 configurations--> delta, grad delta
+//   --force model (Eq. 5-7)--> wrench on A (and the opposite one on B).
+//
+// Conventions (docs/bundle-format.md): world frame, meters, radians;
+// n points from the probe A into B; delta > 0 means overlap; the force on A is
+// along -n. Torques on A are about A's centre of mass c_A.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "hrt/model.h"
+
+namespace hrt {
+
+using Vec6 = Eigen::Matrix<double, 6, 1>;
+
+// Pose of a bundle's object frame in the world: p_world = rotation * p_object + position.
+struct Pose {
+  Vec3 position = Vec3::Zero();
+  Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();  // unit; written x, y, z, w outside
+
+  Eigen::Isometry3d iso() const {
+    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+    T.linear() = rotation.toRotationMatrix();
+    T.translation() = position;
+    return T;
+  }
+};
+
+// The square sampling window of a patch in the (u, v) plane. Grid texel (i, j)
+// (i along u, j along v, 0 <= i, j < resolution) has its centre at the world point
+//   origin + (i + 0.5) * cell * u + (j + 0.5) * cell * v
+// (origin lies on the plane through the patch; heights are h = n . p, absolute).
+struct Window {
+  Vec3 origin = Vec3::Zero();  // world, corner of texel (0, 0)
+  double cell = 0.0;           // m, grid texel size
+  int resolution = 0;          // N: the grid is N x N texels
+};
+
+// One contact patch between the probe A and another object B.
+struct ContactPatch {
+  int object_b = -1;            // index of B in the scene (A is the probe)
+  Vec3 p_a = Vec3::Zero();      // contact point on A (world)
+  Vec3 p_b = Vec3::Zero();      // contact point on B (world)
+  Vec3 n = Vec3::UnitZ();       // unit, from A into B
+  Vec3 u = Vec3::UnitX();       // unit tangent; {u, v, n} right-handed
+  Vec3 v = Vec3::UnitY();
+  Window window;
+  std::vector<uint32_t> tris_a;  // coarse triangles of A facing +n (the highest surface)
+  std::vector<uint32_t> tris_b;  // coarse triangles of B facing -n (the lowest surface)
+  int piece_pairs = 0;           // how many piece pairs were clustered into this patch
+
+  // Results of the force model (filled by compute_patch_wrench).
+  double delta = 0.0;            // directional penetration depth (Eq. 9), m
+  Vec6 grad = Vec6::Zero();      // d delta / d(u, v, n, theta_u, theta_v, theta_n); [2] == 1
+  Vec3 force = Vec3::Zero();     // on A, world, N
+  Vec3 torque = Vec3::Zero();    // on A about A's centre of mass, world, N m
+  bool covered = false;          // some texel was covered by both A and B
+};
+
+}  // namespace hrt
