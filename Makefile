@@ -9,7 +9,7 @@ JOBS  ?= $(shell nproc)
 
 APT_PACKAGES := build-essential cmake pkg-config python3-venv \
   libeigen3-dev libfcl-dev libopenexr-dev nlohmann-json3-dev libcli11-dev \
-  libgtest-dev googletest \
+  libgtest-dev googletest libssl-dev \
   libegl-mesa0 libgl1-mesa-dri libegl-dev libepoxy-dev
 
 .PHONY: setup apt venv runtime test test-py test-cpp demo bench clean

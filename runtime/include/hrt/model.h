@@ -101,6 +101,11 @@ struct Model {
 struct LoadOptions {
   bool verify_hashes = true;  // SHA-256 of every file against the manifest
   bool check_invariants = true;  // indices, UV range, convexity, atlas fill
+  // Threads that decode atlas.exr: 0 = std::thread::hardware_concurrency(),
+  // 1 = the calling thread only. More than 1 grows OpenEXR's process-wide
+  // thread pool (Imf::setGlobalThreadCount) to that size if it is smaller;
+  // its threads sleep when idle.
+  int decode_threads = 0;
 };
 
 // Loads and checks a bundle directory field by field against the spec.

@@ -1,0 +1,362 @@
+"""Bake benchmark (issue 2, "Benchmark"): ``hbake bench`` / ``examples/bench_bake.py``.
+
+Bakes the shared models (``../shared/models`` from the repository root; absent
+ones are skipped) and the generated ~650k-triangle CAD part
+(:func:`hbake.procedural.cad_part`), each bake in a fresh Python process so that
+the peak resident set size is that bake's alone (``os.wait4`` returns the
+child's own ``ru_maxrss``). Prints a Markdown table: triangles in and out,
+convex pieces, seconds per stage, total wall time, peak RSS, and the
+reconstruction error (p95 of both directions, in texel sizes), plus the machine
+it ran on. With ``repeat > 1`` every figure is the median over the runs.
+
+Not a timed test: the targets (650k part in <= 30 s and <= 4 GiB on a 2-core
+machine) are printed next to the figures, and ``run_bench`` returns the rows
+for a caller that wants to check them.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import click
+
+#: The shared models and the unit each is baked in (none of the files records
+#: one; these give hand-sized or plausible parts, and the figures of the table
+#: that matter, errors relative to the texel size, do not depend on it).
+SHARED_MODELS: dict[str, str] = {
+    "stanford_bunny.obj": "m",        # 0.156 m: the real bunny figurine
+    "armadillo.obj": "m",
+    "fandisk.obj": "cm",
+    "rocker_arm.obj": "m",
+    "hammer_scan.obj": "in",          # 8.2 in = 21 cm: a hand tool
+    "planetary_gears.stl": "mm",      # OpenSCAD output: millimetres
+    "mountain_terrain.obj": "cm",
+}
+
+#: Targets of issue 2 for the 650k-triangle part on a 2-core machine.
+TARGET_SECONDS = 30.0
+TARGET_RSS_BYTES = 4 * 1024 ** 3
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SHARED_DIR = REPO_ROOT.parent / "shared" / "models"
+
+
+@dataclass
+class BenchRow:
+    """Figures of one model (medians when repeated)."""
+
+    model: str
+    triangles_in: int
+    triangles_out: int
+    pieces: int
+    stages: dict[str, float]        # seconds per stage, in pipeline order
+    total_s: float                  # bake's own wall time (inside the process)
+    process_s: float                # process wall time, interpreter start and imports included
+    peak_rss: int                   # bytes
+    p95_c2f_texels: float           # coarse -> full, p95 / texel size
+    p95_f2c_texels: float           # full -> coarse, p95 / texel size
+    texel_size: float               # m
+    runs: int
+
+    def to_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+# --------------------------------------------------------------------------
+# Machine description
+# --------------------------------------------------------------------------
+
+def machine() -> dict[str, Any]:
+    """CPU model, core counts and memory of this machine (for the table's caption)."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    mem = None
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemTotal:"):
+                mem = int(line.split()[1]) * 1024
+                break
+    except OSError:
+        pass
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:
+        usable = os.cpu_count()
+    return {"cpu": cpu, "logical_cpus": os.cpu_count(), "usable_cpus": usable,
+            "memory_bytes": mem, "python": platform.python_version(),
+            "system": f"{platform.system()} {platform.release()}"}
+
+
+# --------------------------------------------------------------------------
+# One bake in a child process
+# --------------------------------------------------------------------------
+
+def _child(input_path: str, output_path: str, overrides_json: str, result_path: str) -> int:
+    """Run one bake in this (fresh) process and write its figures as JSON."""
+    from hbake import bake
+    from hbake.settings import BakeSettings
+
+    settings = BakeSettings().with_overrides(json.loads(overrides_json))
+    t0 = time.perf_counter()
+    report = bake(input_path, output_path, settings, force=True, quiet=True)
+    total = time.perf_counter() - t0
+    manifest = json.loads((Path(output_path) / "manifest.json").read_text())
+    stages = _stage_seconds(report)
+    q = manifest["quality"]["reconstruction"]
+    texel = manifest["atlas"]["texel_size"]
+    out = {
+        "triangles_in": manifest["source"]["triangles"],
+        "triangles_out": manifest["coarse"]["triangles"],
+        "pieces": manifest["pieces"]["count"],
+        "stages": stages,
+        "total_s": total,
+        "p95_c2f_texels": q["coarse_to_full"]["p95"] / texel,
+        "p95_f2c_texels": q["full_to_coarse"]["p95"] / texel,
+        "texel_size": texel,
+    }
+    Path(result_path).write_text(json.dumps(out))
+    return 0
+
+
+def _stage_seconds(report: Any) -> dict[str, float]:
+    """Per-stage seconds from what ``hbake.bake`` returns (a mapping or an object)."""
+    timings = None
+    for name in ("timings", "stage_seconds", "stages"):
+        timings = report.get(name) if isinstance(report, dict) else getattr(report, name, None)
+        if timings:
+            break
+    if not timings:
+        return {}
+    if isinstance(timings, dict):
+        return {str(k): float(v) for k, v in timings.items()}
+    return {str(k): float(v) for k, v in timings}
+
+
+def _bake_in_child(input_path: Path, output_path: Path, overrides: dict) -> tuple[dict, float, int]:
+    """Bake in a fresh interpreter; return (figures, process wall seconds, peak RSS bytes)."""
+    with tempfile.NamedTemporaryFile("r", suffix=".json", delete=False) as fh:
+        result_path = fh.name
+    try:
+        cmd = [sys.executable, "-m", "hbake.bench", "--child", str(input_path), str(output_path),
+               json.dumps(overrides, sort_keys=True), result_path]
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        # wait4 (not wait): the rusage of this child alone, so ru_maxrss is its peak RSS.
+        stderr = proc.stderr.read()
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - t0
+        if proc.returncode != 0:
+            tail = stderr.decode(errors="replace").strip().splitlines()[-1:] or ["(no output)"]
+            raise RuntimeError(f"bake of {input_path.name} failed with exit code "
+                               f"{proc.returncode}: {tail[0]}")
+        figures = json.loads(Path(result_path).read_text())
+    finally:
+        if os.path.exists(result_path):
+            os.unlink(result_path)
+    # Linux reports ru_maxrss in KiB (macOS in bytes).
+    rss = usage.ru_maxrss * (1 if sys.platform == "darwin" else 1024)
+    return figures, wall, rss
+
+
+# --------------------------------------------------------------------------
+# The benchmark
+# --------------------------------------------------------------------------
+
+def default_models(work_dir: Path, log=print) -> list[tuple[str, Path, str]]:
+    """(name, path, unit) of the shared models present plus the generated CAD part."""
+    from hbake import procedural
+
+    models = []
+    if SHARED_DIR.is_dir():
+        for name, unit in SHARED_MODELS.items():
+            path = SHARED_DIR / name
+            if path.is_file():
+                models.append((name, path, unit))
+            else:
+                log(f"bench: skipping {name}: not in {SHARED_DIR}")
+    else:
+        log(f"bench: skipping the shared models: {SHARED_DIR} not found")
+    cad = work_dir / "cad_part.ply"
+    if not cad.exists():
+        procedural.generate("cad_part", cad)
+    models.append(("cad_part (generated)", cad, "m"))
+    return models
+
+
+def _median_row(name: str, runs: list[tuple[dict, float, int]]) -> BenchRow:
+    med = statistics.median
+    figs = [r[0] for r in runs]
+    stage_names: list[str] = []
+    for f in figs:
+        for k in f["stages"]:
+            if k not in stage_names:
+                stage_names.append(k)
+    return BenchRow(
+        model=name,
+        triangles_in=figs[0]["triangles_in"],
+        triangles_out=figs[0]["triangles_out"],
+        pieces=figs[0]["pieces"],
+        stages={k: med([f["stages"].get(k, 0.0) for f in figs]) for k in stage_names},
+        total_s=med([f["total_s"] for f in figs]),
+        process_s=med([r[1] for r in runs]),
+        peak_rss=int(med([r[2] for r in runs])),
+        p95_c2f_texels=figs[0]["p95_c2f_texels"],
+        p95_f2c_texels=figs[0]["p95_f2c_texels"],
+        texel_size=figs[0]["texel_size"],
+        runs=len(runs),
+    )
+
+
+def format_table(rows: Sequence[BenchRow], info: dict) -> str:
+    """Markdown table of the rows plus a caption naming the machine."""
+    stage_names: list[str] = []
+    for r in rows:
+        for k in r.stages:
+            if k not in stage_names:
+                stage_names.append(k)
+    head = (["model", "tris in", "tris out", "pieces"] + [f"{s} s" for s in stage_names]
+            + ["total s", "process s", "peak RSS MiB", "p95 c->f /texel", "p95 f->c /texel"])
+    lines = ["| " + " | ".join(head) + " |", "|" + "|".join(
+        ["---"] + ["---:"] * (len(head) - 1)) + "|"]
+    for r in rows:
+        cells = ([r.model, f"{r.triangles_in:,}", f"{r.triangles_out:,}", str(r.pieces)]
+                 + [f"{r.stages.get(s, 0.0):.2f}" for s in stage_names]
+                 + [f"{r.total_s:.1f}", f"{r.process_s:.1f}", f"{r.peak_rss / 2**20:,.0f}",
+                    f"{r.p95_c2f_texels:.3f}", f"{r.p95_f2c_texels:.3f}"])
+        lines.append("| " + " | ".join(cells) + " |")
+    mem = f", {info['memory_bytes'] / 2**30:.0f} GiB RAM" if info.get("memory_bytes") else ""
+    runs = rows[0].runs if rows else 1
+    lines.append("")
+    lines.append(f"Machine: {info['cpu']}, {info['usable_cpus']} usable of "
+                 f"{info['logical_cpus']} logical CPUs{mem}; Python {info['python']}, "
+                 f"{info['system']}. "
+                 + (f"Median of {runs} runs. " if runs > 1 else "One run. ")
+                 + "total = the bake inside its process; process = the whole child "
+                 "(interpreter start and imports included); peak RSS of that child.")
+    return "\n".join(lines)
+
+
+def run_bench(models: Sequence[str | os.PathLike] | None = None,
+              out_dir: str | os.PathLike | None = None,
+              json_path: str | os.PathLike | None = None,
+              repeat: int = 1,
+              overrides: dict | None = None,
+              log=print) -> list[BenchRow]:
+    """Bake each model in a fresh process and print the table.
+
+    ``models``: mesh files (baked in meters unless listed in ``SHARED_MODELS``),
+    default: the shared models present and the generated CAD part. ``out_dir``:
+    where the bundles (and the generated part) go, default a temporary
+    directory removed afterwards. ``json_path``: also write the rows and the
+    machine as JSON. ``overrides``: settings overrides (dotted keys) for every bake.
+    """
+    if repeat < 1:
+        raise ValueError("repeat must be at least 1")
+    tmp = None
+    if out_dir is None:
+        tmp = tempfile.mkdtemp(prefix="hbake-bench-")
+        work = Path(tmp)
+    else:
+        work = Path(out_dir)
+        work.mkdir(parents=True, exist_ok=True)
+    try:
+        if models is None:
+            todo = default_models(work, log)
+        else:
+            todo = []
+            for m in models:
+                p = Path(m)
+                if not p.is_file():
+                    raise FileNotFoundError(f"bench: {p}: no such file")
+                todo.append((p.name, p, SHARED_MODELS.get(p.name, "m")))
+        rows = []
+        for name, path, unit in todo:
+            ov = {"load.units": unit, **(overrides or {})}
+            stem = Path(name.split(" ")[0]).stem
+            runs = []
+            for _ in range(repeat):
+                runs.append(_bake_in_child(path, work / f"{stem}.hbundle", ov))
+            row = _median_row(name, runs)
+            rows.append(row)
+            log(f"bench: {name}: {row.total_s:.1f} s, peak RSS {row.peak_rss / 2**20:,.0f} MiB")
+        info = machine()
+        log("")
+        log(format_table(rows, info))
+        cad = [r for r in rows if r.model.startswith("cad_part")]
+        for r in cad:
+            ok = r.process_s <= TARGET_SECONDS and r.peak_rss <= TARGET_RSS_BYTES
+            log(f"\ntarget for the {r.triangles_in:,}-triangle CAD part: <= {TARGET_SECONDS:.0f} s "
+                f"and <= {TARGET_RSS_BYTES / 2**30:.0f} GiB: "
+                f"{'met' if ok else 'NOT met'} ({r.process_s:.1f} s, "
+                f"{r.peak_rss / 2**30:.2f} GiB)")
+        if json_path is not None:
+            Path(json_path).write_text(json.dumps(
+                {"machine": info, "repeat": repeat, "rows": [r.to_dict() for r in rows]},
+                indent=2, sort_keys=True) + "\n")
+        return rows
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+@click.command("bench", context_settings={"help_option_names": ["-h", "--help"]})
+@click.argument("models", nargs=-1, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--out-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="keep the bundles (and the generated CAD part) here [default: a "
+                   "temporary directory, removed]")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
+              default=None, help="also write the figures and the machine as JSON")
+@click.option("--repeat", type=click.IntRange(1), default=1, show_default=True,
+              help="runs per model; the table shows medians")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+              help="settings override for every bake, as in `hbake bake --set`")
+def bench_command(models, out_dir, json_path, repeat, sets):
+    """Bake the shared models and the generated 650k-triangle CAD part; print a table.
+
+    MODELS: mesh files to bake instead (in meters unless the file name is one of
+    the shared models). Each bake runs in a fresh process, so peak RSS is per model.
+    """
+    from hbake.settings import parse_value
+
+    overrides = {}
+    for item in sets:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise click.UsageError(f"--set {item}: expected KEY=VALUE")
+        overrides[key.strip()] = parse_value(value.strip())
+    try:
+        run_bench(list(models) or None, out_dir, json_path, repeat, overrides,
+                  log=lambda msg: click.echo(msg))
+    except (RuntimeError, FileNotFoundError) as exc:
+        click.echo(f"hbake bench: error: {exc}", err=True)
+        sys.exit(1)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry of ``python -m hbake.bench`` (the child protocol, or the bench command)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["--child"]:
+        return _child(*argv[1:5])
+    bench_command.main(args=argv, prog_name="hbake bench")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1186 @@
+"""The haptic bundle (``.hbundle``): writer, reader, validator and atlas lookup.
+
+This module is the reference implementation of docs/bundle-format.md; the C++
+loader in ``runtime/src/io/`` must agree with it, and both are checked against
+the golden bundles in ``tests/golden/``.
+
+* :func:`write_bundle` writes a bundle atomically (temporary sibling directory,
+  then ``os.rename``) and byte-deterministically (fixed PLY headers, EXR without
+  time stamps, manifest with sorted keys), and validates it before publishing it.
+* :func:`validate_bundle` returns one :class:`Problem` per issue, each with the
+  error class of the spec (``io``, ``version``, ``schema``, ``hash``, ``mesh``,
+  ``atlas``, ``pieces``); :func:`read_bundle` raises the first as a
+  :class:`~hbake.errors.BundleError`.
+* :func:`atlas_lookup` is the bilinear lookup of the spec ("UV to texel").
+"""
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import re
+import secrets
+import shutil
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import BakeFailedError, BundleError, OutputExistsError, OutputUnwritableError
+
+__all__ = [
+    "FORMAT_NAME", "FORMAT_VERSION", "FORMAT_MAJOR", "FILE_NAMES", "ERROR_CLASSES",
+    "BundleData", "Bundle", "Problem",
+    "write_bundle", "read_bundle", "validate_bundle", "check_bundle",
+    "atlas_lookup", "texel_coords",
+    "load_schema", "manifest_bytes", "sha256_file",
+    "write_coarse_ply", "read_coarse_ply", "write_pieces_ply", "read_pieces_ply",
+    "write_atlas_exr", "read_atlas_exr", "write_ply_mesh", "read_ply_mesh",
+    "convexity_tolerance",
+]
+
+# --------------------------------------------------------------------------- constants
+
+FORMAT_NAME = "hbundle"
+FORMAT_VERSION = "1.0"
+FORMAT_MAJOR = 1
+
+#: Fixed file names inside a bundle (the manifest's ``files.*.path`` may name others).
+FILE_NAMES = {"manifest": "manifest.json", "coarse_mesh": "coarse.ply",
+              "atlas": "atlas.exr", "pieces": "pieces.ply"}
+
+#: Error classes in the order in which validation reports them (docs/bundle-format.md).
+ERROR_CLASSES = ("io", "version", "schema", "hash", "mesh", "atlas", "pieces")
+
+#: Channels of the atlas, as the manifest lists them (sorted, as OpenEXR stores them).
+ATLAS_CHANNELS = ["A", "B", "G", "R"]
+ATLAS_COMPRESSIONS = ("zip", "piz")
+
+# Convexity tolerance of the spec: a piece vertex may lie in front of a face plane by
+# at most CONVEX_REL_TOL * bbox_diagonal + CONVEX_ABS_TOL metres. The relative part
+# covers the float32 rounding of the stored positions (2^-24 ~ 6e-8 relative to the
+# coordinates, which are within about one bbox diagonal of the origin for bundles
+# that are not far off-centre); the absolute part keeps tiny models from demanding
+# exactness.
+CONVEX_REL_TOL = 1e-6
+CONVEX_ABS_TOL = 1e-9
+
+# At most this many individual examples per kind of problem; the rest are counted.
+_MAX_EXAMPLES = 3
+
+_COARSE_HEADER = (
+    "ply\n"
+    "format binary_little_endian 1.0\n"
+    "comment hbundle coarse mesh 1.0\n"
+    "element vertex {n}\n"
+    "property float x\n"
+    "property float y\n"
+    "property float z\n"
+    "element face {m}\n"
+    "property list uchar uint vertex_indices\n"
+    "property list uchar float texcoord\n"
+    "end_header\n"
+)
+_PIECES_HEADER = (
+    "ply\n"
+    "format binary_little_endian 1.0\n"
+    "comment hbundle pieces 1.0\n"
+    "element vertex {n}\n"
+    "property float x\n"
+    "property float y\n"
+    "property float z\n"
+    "property uint piece\n"
+    "element face {m}\n"
+    "property list uchar uint vertex_indices\n"
+    "property uint piece\n"
+    "element piece {p}\n"
+    "property list uint uint coarse_faces\n"
+    "end_header\n"
+)
+
+# Binary records (numpy structured dtypes are packed: no padding).
+_XYZ = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+_COARSE_FACE = np.dtype([("n", "u1"), ("idx", "<u4", (3,)), ("nuv", "u1"), ("uv", "<f4", (6,))])
+_PIECE_VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("piece", "<u4")])
+_PIECE_FACE = np.dtype([("n", "u1"), ("idx", "<u4", (3,)), ("piece", "<u4")])
+
+_MAX_HEADER_BYTES = 4096
+
+
+# --------------------------------------------------------------------------- data types
+
+@dataclass
+class BundleData:
+    """Everything a bundle holds, in memory (see docs/bundle-format.md for units)."""
+
+    coarse_vertices: np.ndarray       # (N, 3) float64, metres, object frame (stored as float32)
+    coarse_faces: np.ndarray          # (M, 3) uint32, CCW seen from outside
+    coarse_uvs: np.ndarray            # (M, 3, 2) float32, per-corner UVs in [0, 1], v up
+    atlas: np.ndarray                 # (H, W, 4) float32, row 0 = top (first scanline); RGB position, A coverage
+    piece_vertices: list[np.ndarray]  # per piece (k, 3) float64
+    piece_faces: list[np.ndarray]     # per piece (f, 3) uint32, local indices, CCW outward
+    piece_coarse_faces: list[np.ndarray]  # per piece, sorted unique uint32 coarse triangle ids
+    manifest: dict                    # all fields but "format", "format_version", "files"
+
+
+@dataclass
+class Bundle(BundleData):
+    """A bundle read from disk: :class:`BundleData` with the full manifest and its path."""
+
+    path: Path = field(default_factory=Path)
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One problem found in a bundle: an error class of the spec and one line of text."""
+
+    cls: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.cls}: {self.message}"
+
+
+class _Fail(Exception):
+    """Internal: stop checking the current file (the problem is already recorded)."""
+
+
+# --------------------------------------------------------------------------- small helpers
+
+def sha256_file(path: str | os.PathLike) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"manifest value of type {type(obj).__name__} is not JSON-serialisable")
+
+
+def manifest_bytes(manifest: dict) -> bytes:
+    """The canonical manifest encoding: UTF-8, sorted keys, 2-space indent, trailing newline.
+
+    NaN and infinities are refused (they are not JSON)."""
+    text = json.dumps(manifest, sort_keys=True, indent=2, ensure_ascii=False,
+                      allow_nan=False, default=_json_default)
+    return (text + "\n").encode("utf-8")
+
+
+_SCHEMA_CACHE: dict | None = None
+
+
+def load_schema() -> dict:
+    """The manifest's JSON Schema (draft 2020-12), shipped in ``hbake/schema``."""
+    global _SCHEMA_CACHE
+    if _SCHEMA_CACHE is None:
+        # Next to this module (package data, see pyproject.toml).
+        text = (Path(__file__).resolve().parent / "schema" / "manifest.schema.json").read_text("utf-8")
+        _SCHEMA_CACHE = json.loads(text)
+    return _SCHEMA_CACHE
+
+
+def convexity_tolerance(bbox_diagonal: float) -> float:
+    """How far (m) a piece vertex may lie in front of a face plane of its piece."""
+    return CONVEX_REL_TOL * float(bbox_diagonal) + CONVEX_ABS_TOL
+
+
+def _bbox_diagonal(points: np.ndarray) -> float:
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) == 0:
+        return 0.0
+    return float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+
+
+def _n(count: int, noun: str, plural: str | None = None) -> str:
+    """'1 face', '3 faces'."""
+    return f"{count} {noun if count == 1 else (plural or noun + 's')}"
+
+
+def _examples(items: list, fmt) -> str:
+    """'a; b; c (and 4 more)' for problem messages that would otherwise repeat."""
+    shown = "; ".join(fmt(x) for x in items[:_MAX_EXAMPLES])
+    if len(items) > _MAX_EXAMPLES:
+        shown += f" (and {len(items) - _MAX_EXAMPLES} more)"
+    return shown
+
+
+# --------------------------------------------------------------------------- UV <-> texel
+
+def texel_coords(uv: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Continuous texel coordinates (x, y) of UVs: x = u W - 0.5, y = (1 - v) H - 0.5.
+
+    Texel centres are at integer (x, y); row 0 (y = 0) is the first stored scanline,
+    the top of the image, since v points up."""
+    uv = np.asarray(uv, dtype=np.float64)
+    x = uv[..., 0] * width - 0.5
+    y = (1.0 - uv[..., 1]) * height - 0.5
+    return np.stack([x, y], axis=-1)
+
+
+def atlas_lookup(atlas: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of all channels at UVs, by the spec's convention.
+
+    ``atlas`` is (H, W, C) with row 0 the top; ``uv`` is (K, 2) (or (2,)).
+    Returns (K, C) float64 (or (C,)). The four texels are clamped to the image."""
+    atlas = np.asarray(atlas)
+    if atlas.ndim != 3:
+        raise ValueError(f"atlas must be (H, W, C), got shape {atlas.shape}")
+    h, w = atlas.shape[:2]
+    uv = np.asarray(uv, dtype=np.float64)
+    single = uv.ndim == 1
+    uv = uv.reshape(-1, 2)
+    xy = texel_coords(uv, w, h)
+    x0f = np.floor(xy[:, 0])
+    y0f = np.floor(xy[:, 1])
+    fx = (xy[:, 0] - x0f)[:, None]
+    fy = (xy[:, 1] - y0f)[:, None]
+    x0 = x0f.astype(np.int64)
+    y0 = y0f.astype(np.int64)
+    i0 = np.clip(x0, 0, w - 1)
+    i1 = np.clip(x0 + 1, 0, w - 1)
+    j0 = np.clip(y0, 0, h - 1)
+    j1 = np.clip(y0 + 1, 0, h - 1)
+    a = atlas.astype(np.float64, copy=False)
+    out = ((1 - fx) * (1 - fy) * a[j0, i0] + fx * (1 - fy) * a[j0, i1]
+           + (1 - fx) * fy * a[j1, i0] + fx * fy * a[j1, i1])
+    return out[0] if single else out
+
+
+def _footprint_texels(uv_tri: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Texels (i, j) that a bilinear lookup at some point of a UV triangle reads.
+
+    A point at texel coordinates (x, y) reads texels floor(x) + {0, 1} by
+    floor(y) + {0, 1} (clamped), so texel (i, j) is read iff the triangle meets the
+    square [i-1, i+1] x [j-1, j+1] (closed: conservative at exact ties). The
+    square-triangle test is the separating-axis test on the two box axes (the
+    candidate range) and the three edge normals."""
+    p = texel_coords(uv_tri, width, height)  # (3, 2)
+    lo = np.floor(p.min(axis=0)).astype(np.int64) - 1
+    hi = np.ceil(p.max(axis=0)).astype(np.int64) + 1
+    # Clamp the candidate range: texels beyond the image map to its border anyway,
+    # and a range bounded by the image keeps corrupt UVs from exploding the work.
+    lo_c = np.maximum(lo, [-1, -1])
+    hi_c = np.minimum(hi, [width, height])
+    ii = np.arange(lo_c[0], hi_c[0] + 1)
+    jj = np.arange(lo_c[1], hi_c[1] + 1)
+    ci, cj = np.meshgrid(ii, jj, indexing="xy")
+    ci = ci.ravel()
+    cj = cj.ravel()
+    # box axes: |x_i - c| <= 1 somewhere on the triangle
+    keep = ((ci >= p[:, 0].min() - 1) & (ci <= p[:, 0].max() + 1)
+            & (cj >= p[:, 1].min() - 1) & (cj <= p[:, 1].max() + 1))
+    for k in range(3):
+        a, b = p[k], p[(k + 1) % 3]
+        n = np.array([b[1] - a[1], a[0] - b[0]])  # normal of edge a->b
+        proj = p @ n
+        tmin, tmax = proj.min(), proj.max()
+        centre = ci * n[0] + cj * n[1]
+        r = abs(n[0]) + abs(n[1])  # half-extent 1 of the square along n
+        keep &= (centre + r >= tmin) & (centre - r <= tmax)
+    ci = np.clip(ci[keep], 0, width - 1)
+    cj = np.clip(cj[keep], 0, height - 1)
+    return ci, cj
+
+
+# --------------------------------------------------------------------------- PLY
+
+def _read_header(blob: bytes, name: str, add) -> tuple[list[str], int]:
+    end = blob.find(b"end_header\n", 0, _MAX_HEADER_BYTES)
+    if not blob.startswith(b"ply\n"):
+        add(f"{name}: not a PLY file (the first line must be 'ply')")
+        raise _Fail
+    if end < 0:
+        add(f"{name}: PLY header has no 'end_header' line within {_MAX_HEADER_BYTES} bytes")
+        raise _Fail
+    header_end = end + len(b"end_header\n")
+    try:
+        text = blob[:header_end].decode("ascii")
+    except UnicodeDecodeError:
+        add(f"{name}: PLY header is not ASCII")
+        raise _Fail
+    return text.split("\n")[:-1], header_end
+
+
+def _match_header(lines: list[str], template: str, name: str, add) -> dict[str, int]:
+    """Match header lines against the spec's fixed header; return the element counts.
+
+    The template's third line is the optional comment: any one ``comment`` line is
+    accepted there and nowhere else. Counts are plain decimal integers."""
+    want = template.split("\n")[:-1]
+    had_comment = len(lines) >= 3 and lines[2].startswith("comment ")
+    if had_comment:
+        lines = lines[:2] + lines[3:]
+    want = want[:2] + want[3:]
+    counts: dict[str, int] = {}
+    if len(lines) != len(want):
+        add(f"{name}: PLY header has {len(lines)} lines, the spec's header has {len(want)} "
+            "(not counting the optional comment)")
+        raise _Fail
+    for k, (got, exp) in enumerate(zip(lines, want)):
+        line_no = k + 1 + (1 if had_comment and k >= 2 else 0)
+        if "{" in exp:  # "element vertex {n}": the count is the last word
+            prefix, key = exp[:exp.index("{")], exp[exp.index("{") + 1:exp.index("}")]
+            digits = got[len(prefix):] if got.startswith(prefix) else ""
+            if not re.fullmatch(r"0|[1-9][0-9]{0,11}", digits):
+                add(f"{name}: PLY header line {line_no} is {got!r}, expected {prefix + key.upper()!r}")
+                raise _Fail
+            counts[key] = int(digits)
+        elif got != exp:
+            add(f"{name}: PLY header line {line_no} is {got!r}, expected {exp!r}")
+            raise _Fail
+    return counts
+
+
+def write_coarse_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.ndarray,
+                     uvs: np.ndarray) -> None:
+    """Write ``coarse.ply`` exactly as the spec lays it out."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(faces).reshape(-1, 3)
+    uv = np.asarray(uvs, dtype=np.float32).reshape(-1, 3, 2)
+    if len(uv) != len(f):
+        raise ValueError(f"coarse_uvs has {len(uv)} faces, coarse_faces {len(f)}")
+    if len(f) and (f.min() < 0 or f.max() > np.iinfo(np.uint32).max):
+        raise ValueError("coarse face indices do not fit uint32")
+    vert = np.empty(len(v), dtype=_XYZ)
+    v32 = v.astype("<f4")
+    vert["x"], vert["y"], vert["z"] = v32[:, 0], v32[:, 1], v32[:, 2]
+    rec = np.empty(len(f), dtype=_COARSE_FACE)
+    rec["n"] = 3
+    rec["idx"] = f.astype("<u4")
+    rec["nuv"] = 6
+    rec["uv"] = uv.reshape(-1, 6).astype("<f4")
+    with open(path, "wb") as fh:
+        fh.write(_COARSE_HEADER.format(n=len(v), m=len(f)).encode("ascii"))
+        fh.write(vert.tobytes())
+        fh.write(rec.tobytes())
+
+
+def write_pieces_ply(path: str | os.PathLike, piece_vertices: list[np.ndarray],
+                     piece_faces: list[np.ndarray], piece_coarse_faces: list[np.ndarray]) -> None:
+    """Write ``pieces.ply``: global vertex indices, piece ids, and the coarse-face map."""
+    if not (len(piece_vertices) == len(piece_faces) == len(piece_coarse_faces)):
+        raise ValueError("piece_vertices, piece_faces and piece_coarse_faces differ in length")
+    verts, faces, vid, fid = [], [], [], []
+    offset = 0
+    for p, (pv, pf) in enumerate(zip(piece_vertices, piece_faces)):
+        pv = np.asarray(pv, dtype=np.float64).reshape(-1, 3)
+        pf = np.asarray(pf, dtype=np.int64).reshape(-1, 3)
+        if len(pf) and (pf.min() < 0 or pf.max() >= len(pv)):
+            raise ValueError(f"piece {p}: face index out of range")
+        verts.append(pv)
+        faces.append(pf + offset)
+        vid.append(np.full(len(pv), p, dtype=np.uint32))
+        fid.append(np.full(len(pf), p, dtype=np.uint32))
+        offset += len(pv)
+    v = np.concatenate(verts) if verts else np.zeros((0, 3))
+    f = np.concatenate(faces) if faces else np.zeros((0, 3), np.int64)
+    vrec = np.empty(len(v), dtype=_PIECE_VERTEX)
+    v32 = v.astype("<f4")
+    vrec["x"], vrec["y"], vrec["z"] = v32[:, 0], v32[:, 1], v32[:, 2]
+    vrec["piece"] = np.concatenate(vid) if vid else np.zeros(0, np.uint32)
+    frec = np.empty(len(f), dtype=_PIECE_FACE)
+    frec["n"] = 3
+    frec["idx"] = f.astype("<u4")
+    frec["piece"] = np.concatenate(fid) if fid else np.zeros(0, np.uint32)
+    with open(path, "wb") as fh:
+        fh.write(_PIECES_HEADER.format(n=len(v), m=len(f), p=len(piece_vertices)).encode("ascii"))
+        fh.write(vrec.tobytes())
+        fh.write(frec.tobytes())
+        for cf in piece_coarse_faces:
+            cf = np.asarray(cf, dtype=np.int64).ravel()
+            fh.write(np.array([len(cf)], dtype="<u4").tobytes())
+            fh.write(cf.astype("<u4").tobytes())
+
+
+def _parse_coarse(blob: bytes, name: str, add) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    lines, off = _read_header(blob, name, add)
+    c = _match_header(lines, _COARSE_HEADER, name, add)
+    n, m = c["n"], c["m"]
+    need = off + n * _XYZ.itemsize + m * _COARSE_FACE.itemsize
+    if len(blob) != need:
+        add(f"{name}: {len(blob)} bytes, the header's {n} vertices and {m} faces need {need}")
+        raise _Fail
+    vert = np.frombuffer(blob, dtype=_XYZ, count=n, offset=off)
+    rec = np.frombuffer(blob, dtype=_COARSE_FACE, count=m, offset=off + n * _XYZ.itemsize)
+    bad = np.flatnonzero((rec["n"] != 3) | (rec["nuv"] != 6))
+    if len(bad):
+        add(f"{name}: {_n(len(bad), 'face record')} not '3 indices, 6 texcoords' "
+            f"(first: face {bad[0]} has {rec['n'][bad[0]]} indices, {rec['nuv'][bad[0]]} texcoords)")
+        raise _Fail
+    v = np.stack([vert["x"], vert["y"], vert["z"]], axis=1).astype(np.float64)
+    f = rec["idx"].astype(np.uint32)
+    uv = rec["uv"].reshape(-1, 3, 2).astype(np.float32)
+    return v, f, uv
+
+
+def _parse_pieces(blob: bytes, name: str, add):
+    lines, off = _read_header(blob, name, add)
+    c = _match_header(lines, _PIECES_HEADER, name, add)
+    n, m, p = c["n"], c["m"], c["p"]
+    fixed = off + n * _PIECE_VERTEX.itemsize + m * _PIECE_FACE.itemsize
+    if len(blob) < fixed + 4 * p:
+        add(f"{name}: file is truncated ({len(blob)} bytes; the header's {n} vertices, {m} faces "
+            f"and {p} pieces need at least {fixed + 4 * p})")
+        raise _Fail
+    vrec = np.frombuffer(blob, dtype=_PIECE_VERTEX, count=n, offset=off)
+    frec = np.frombuffer(blob, dtype=_PIECE_FACE, count=m, offset=off + n * _PIECE_VERTEX.itemsize)
+    bad = np.flatnonzero(frec["n"] != 3)
+    if len(bad):
+        add(f"{name}: {_n(len(bad), 'face record')} without 3 indices (first: face {bad[0]})")
+        raise _Fail
+    maps = []
+    pos = fixed
+    for k in range(p):
+        if pos + 4 > len(blob):
+            add(f"{name}: file is truncated in the coarse_faces list of piece {k}")
+            raise _Fail
+        cnt = int(np.frombuffer(blob, dtype="<u4", count=1, offset=pos)[0])
+        pos += 4
+        if pos + 4 * cnt > len(blob):
+            add(f"{name}: file is truncated in the coarse_faces list of piece {k} ({cnt} entries)")
+            raise _Fail
+        maps.append(np.frombuffer(blob, dtype="<u4", count=cnt, offset=pos).astype(np.uint32))
+        pos += 4 * cnt
+    if pos != len(blob):
+        add(f"{name}: {len(blob) - pos} bytes after the last element")
+        raise _Fail
+    v = np.stack([vrec["x"], vrec["y"], vrec["z"]], axis=1).astype(np.float64)
+    return v, vrec["piece"].astype(np.uint32), frec["idx"].astype(np.uint32), \
+        frec["piece"].astype(np.uint32), maps
+
+
+def read_coarse_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(vertices float64 (N,3), faces uint32 (M,3), uvs float32 (M,3,2)); raises BundleError('mesh')."""
+    msgs: list[str] = []
+    try:
+        return _parse_coarse(Path(path).read_bytes(), Path(path).name, msgs.append)
+    except _Fail:
+        raise BundleError("mesh", msgs[0]) from None
+
+
+def read_pieces_ply(path: str | os.PathLike):
+    """(vertices, vertex piece ids, faces (global), face piece ids, coarse-face maps)."""
+    msgs: list[str] = []
+    try:
+        return _parse_pieces(Path(path).read_bytes(), Path(path).name, msgs.append)
+    except _Fail:
+        raise BundleError("pieces", msgs[0]) from None
+
+
+# The generic names of the API contract.
+write_ply_mesh = write_coarse_ply
+read_ply_mesh = read_coarse_ply
+
+
+# --------------------------------------------------------------------------- EXR
+
+def _exr():
+    import OpenEXR  # imported lazily: the CLI's --help should not pay for it
+    return OpenEXR
+
+
+def _open_exr(path: Path, header_only: bool):
+    """OpenEXR.File(path) with the library's own chatter captured, not printed.
+
+    The binding reports undecodable pixel data by printing a warning (to Python's
+    stdout) and the C library's messages (to fd 2), then returns a File with no
+    parts; a validator must instead turn that into one problem line. Returns
+    (file or None, exception text or captured messages)."""
+    import contextlib
+    import io
+    import tempfile
+
+    ex = _exr()
+    py_out = io.StringIO()
+    with tempfile.TemporaryFile(mode="w+b") as err:
+        try:
+            sys.stderr.flush()
+        except (AttributeError, ValueError):
+            pass
+        saved = os.dup(2)
+        try:
+            os.dup2(err.fileno(), 2)
+            with contextlib.redirect_stdout(py_out):
+                try:
+                    f = ex.File(str(path), separate_channels=True, header_only=header_only)
+                    exc = None
+                except Exception as e:  # the binding raises bare RuntimeError / KeyError
+                    f, exc = None, e
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        err.seek(0)
+        c_msgs = err.read().decode("utf-8", "replace")
+    lines = [ln.strip() for ln in (str(exc) if exc else "").splitlines() + c_msgs.splitlines()
+             + py_out.getvalue().splitlines() if ln.strip()]
+    # drop the file name that the C library prefixes to its messages
+    lines = [ln.split(": ", 1)[1] if ln.startswith(str(path) + ": ") else ln for ln in lines]
+    return f, (lines[0] if lines else "")
+
+
+def _compression_enum(name: str):
+    ex = _exr()
+    table = {"zip": ex.ZIP_COMPRESSION, "piz": ex.PIZ_COMPRESSION}
+    if name not in table:
+        raise ValueError(f"atlas compression must be one of {sorted(table)}, not {name!r}")
+    return table[name]
+
+
+def _compression_name(value) -> str:
+    # Compression.ZIP_COMPRESSION -> "zip"; ZIPS_COMPRESSION -> "zips" (invalid in bundles)
+    return str(getattr(value, "name", value)).removesuffix("_COMPRESSION").lower()
+
+
+def write_atlas_exr(path: str | os.PathLike, atlas: np.ndarray, compression: str = "zip",
+                    channels: tuple[str, ...] = ("R", "G", "B", "A")) -> None:
+    """Write the atlas as a single-part scanline EXR with FLOAT channels.
+
+    ``atlas`` is (H, W, len(channels)) float32, row 0 = first scanline. The data and
+    display windows are (0,0)-(W-1,H-1); the header carries no time stamp."""
+    ex = _exr()
+    a = np.asarray(atlas, dtype=np.float32)
+    if a.ndim != 3 or a.shape[2] != len(channels):
+        raise ValueError(f"atlas must be (H, W, {len(channels)}), got {a.shape}")
+    header = {"compression": _compression_enum(compression), "type": ex.scanlineimage}
+    # A fresh dict each time: OpenEXR.File replaces its values by Channel objects.
+    pixels = {c: np.ascontiguousarray(a[:, :, k]) for k, c in enumerate(channels)}
+    ex.File(header, pixels).write(str(path))
+
+
+def read_atlas_exr(path: str | os.PathLike) -> np.ndarray:
+    """The atlas as (H, W, 4) float32 RGBA; raises BundleError('atlas') if not readable."""
+    f, why = _open_exr(Path(path), header_only=False)
+    try:
+        ch = f.parts[0].channels
+        return np.stack([np.asarray(ch[c].pixels, dtype=np.float32) for c in "RGBA"], axis=-1)
+    except Exception as e:  # no parts (undecodable), a missing channel, ...
+        raise BundleError("atlas", f"{Path(path).name}: cannot read the atlas: {why or e}") from None
+
+
+# --------------------------------------------------------------------------- writing
+
+def _check_data(data: BundleData) -> None:
+    """Programming errors in the BundleData (not user errors): shapes and types."""
+    v = np.asarray(data.coarse_vertices)
+    f = np.asarray(data.coarse_faces)
+    uv = np.asarray(data.coarse_uvs)
+    a = np.asarray(data.atlas)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"coarse_vertices must be (N, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"coarse_faces must be (M, 3), got {f.shape}")
+    if uv.shape != (len(f), 3, 2):
+        raise ValueError(f"coarse_uvs must be ({len(f)}, 3, 2), got {uv.shape}")
+    if a.ndim != 3 or a.shape[2] != 4:
+        raise ValueError(f"atlas must be (H, W, 4), got {a.shape}")
+    if not isinstance(data.manifest, dict):
+        raise ValueError("manifest must be a dict")
+    for key in ("format", "format_version", "files"):
+        if key in data.manifest:
+            raise ValueError(f"manifest must not contain {key!r}: write_bundle fills it in")
+
+
+def _fsync_dir(path: Path) -> None:
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _write_files(tmp: Path, data: BundleData, compression: str) -> dict:
+    names = FILE_NAMES
+    write_coarse_ply(tmp / names["coarse_mesh"], data.coarse_vertices, data.coarse_faces, data.coarse_uvs)
+    write_atlas_exr(tmp / names["atlas"], data.atlas, compression)
+    write_pieces_ply(tmp / names["pieces"], data.piece_vertices, data.piece_faces, data.piece_coarse_faces)
+    h, w = np.asarray(data.atlas).shape[:2]
+    files: dict[str, dict] = {}
+    for key in ("coarse_mesh", "atlas", "pieces"):
+        p = tmp / names[key]
+        files[key] = {"path": names[key], "sha256": sha256_file(p), "bytes": p.stat().st_size}
+    files["atlas"].update(width=int(w), height=int(h), channels=list(ATLAS_CHANNELS),
+                          pixel_type="float", compression=compression)
+    manifest = dict(data.manifest)
+    manifest.update(format=FORMAT_NAME, format_version=FORMAT_VERSION, files=files)
+    blob = manifest_bytes(manifest)
+    (tmp / names["manifest"]).write_bytes(blob)
+    for key in names.values():
+        with open(tmp / key, "rb+") as fh:
+            os.fsync(fh.fileno())
+    _fsync_dir(tmp)
+    return json.loads(blob)
+
+
+def _looks_like_bundle(path: Path) -> bool:
+    try:
+        return path.is_dir() and (not any(path.iterdir()) or (path / FILE_NAMES["manifest"]).is_file())
+    except OSError:
+        return False
+
+
+def write_bundle(path: str | os.PathLike, data: BundleData, *, force: bool = False,
+                 compression: str = "zip") -> dict:
+    """Write ``data`` as a bundle directory at ``path``; return the final manifest.
+
+    Atomic: the files go to a temporary sibling directory (same parent, name starting
+    with '.'), which is validated with :func:`validate_bundle` and then renamed onto
+    ``path``; on any exception, KeyboardInterrupt included, the temporary directory is
+    removed and an existing bundle is left as it was. With ``force`` an existing
+    bundle (a directory holding ``manifest.json``, or an empty directory) is replaced
+    only once the new one is complete. Byte-deterministic: the same data give the
+    same bytes. Raises OutputExistsError, OutputUnwritableError, or BakeFailedError
+    when the data would make an invalid bundle."""
+    _check_data(data)
+    compression = str(compression).lower()
+    _compression_enum(compression)  # ValueError for anything but zip / piz
+    out = Path(os.path.abspath(os.fspath(path)))
+    parent = out.parent
+    if not parent.exists():
+        raise OutputUnwritableError(f"output directory {parent} does not exist")
+    if not parent.is_dir():
+        raise OutputUnwritableError(f"cannot create {out}: {parent} is not a directory")
+    if out.exists() or out.is_symlink():
+        if not force:
+            raise OutputExistsError(f"{out} already exists (use --force to replace it)")
+        if out.is_symlink() or not _looks_like_bundle(out):
+            raise OutputExistsError(f"refusing to replace {out}: it is not a bundle directory")
+
+    tmp = None
+    for _ in range(100):
+        cand = parent / f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp"
+        try:
+            os.mkdir(cand)  # honours the umask, unlike tempfile.mkdtemp's 0700
+            tmp = cand
+            break
+        except FileExistsError:
+            continue
+        except OSError as e:
+            raise OutputUnwritableError(f"cannot write to {parent}: {e.strerror}") from None
+    if tmp is None:
+        raise OutputUnwritableError(f"cannot create a temporary directory in {parent}")
+
+    old = None
+    try:
+        try:
+            manifest = _write_files(tmp, data, compression)
+        except OSError as e:
+            raise OutputUnwritableError(f"cannot write {e.filename or tmp}: {e.strerror}") from None
+        problems = validate_bundle(tmp)
+        if problems:
+            raise BakeFailedError(f"the bundle for {out.name} would be invalid: {problems[0].cls}: "
+                                  f"{problems[0].message}"
+                                  + (f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""))
+        try:
+            if out.exists() or out.is_symlink():
+                old = parent / f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}.old"
+                os.rename(out, old)
+            os.rename(tmp, out)
+        except OSError as e:
+            if old is not None and not out.exists():
+                os.rename(old, out)
+                old = None
+            if e.errno in (errno.ENOTEMPTY, errno.EEXIST):  # someone created it meanwhile
+                raise OutputExistsError(f"{out} already exists (use --force to replace it)") from None
+            raise OutputUnwritableError(f"cannot rename the bundle into {out}: {e.strerror}") from None
+        tmp = None
+        _fsync_dir(parent)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+            old = None
+        return manifest
+    except BaseException:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        if old is not None and not out.exists():
+            try:
+                os.rename(old, out)
+            except OSError:
+                pass
+        raise
+
+
+# --------------------------------------------------------------------------- reading and validation
+
+class _Checker:
+    """Reads a bundle and records every problem it finds (one Problem per issue)."""
+
+    def __init__(self, path: str | os.PathLike, verify_hashes: bool, invariants: bool):
+        self.path = Path(path)
+        self.verify_hashes = verify_hashes
+        self.invariants = invariants
+        self.problems: list[Problem] = []
+        self.manifest: dict | None = None
+        self.coarse = None    # (v, f, uv)
+        self.atlas = None     # (H, W, 4)
+        self.pieces = None    # parsed pieces tuple
+
+    def add(self, cls: str, msg: str) -> None:
+        self.problems.append(Problem(cls, msg))
+
+    def adder(self, cls: str):
+        return lambda msg: self.add(cls, msg)
+
+    # -- manifest ------------------------------------------------------------
+    def load_manifest(self) -> bool:
+        mpath = self.path / FILE_NAMES["manifest"]
+        if not self.path.exists():
+            self.add("io", "bundle directory does not exist")
+            return False
+        if not self.path.is_dir():
+            self.add("io", "not a directory (a bundle is a directory)")
+            return False
+        try:
+            raw = mpath.read_bytes()
+        except FileNotFoundError:
+            self.add("io", "manifest.json: missing")
+            return False
+        except OSError as e:
+            self.add("io", f"manifest.json: cannot read: {e.strerror}")
+            return False
+        def no_constants(token: str):
+            # Python's json accepts NaN and Infinity; JSON (and nlohmann-json) does not.
+            raise ValueError(f"{token} is not valid JSON")
+
+        try:
+            m = json.loads(raw.decode("utf-8"), parse_constant=no_constants)
+        except (UnicodeDecodeError, ValueError) as e:  # JSONDecodeError is a ValueError
+            self.add("schema", f"manifest.json: not valid UTF-8 JSON: {e}")
+            return False
+        if not isinstance(m, dict):
+            self.add("schema", f"manifest.json: top level is a {type(m).__name__}, not an object")
+            return False
+        # Format and version first: a bundle of another major version may have
+        # another schema, so its schema errors would only hide the real problem.
+        if m.get("format") != FORMAT_NAME:
+            self.add("version", f"manifest.json: format is {m.get('format')!r}, not {FORMAT_NAME!r} "
+                     "(not an hbundle)")
+            return False
+        ver = m.get("format_version")
+        mm = re.fullmatch(r"([0-9]+)\.([0-9]+)", ver) if isinstance(ver, str) else None
+        if mm is None:
+            self.add("version", f"manifest.json: format_version {ver!r} is not MAJOR.MINOR")
+            return False
+        if int(mm.group(1)) != FORMAT_MAJOR:
+            self.add("version", f"manifest.json: unsupported major version {ver} "
+                     f"(this reader supports {FORMAT_MAJOR}.x)")
+            return False
+        import jsonschema
+        validator = jsonschema.Draft202012Validator(load_schema())
+        errors = sorted(validator.iter_errors(m), key=lambda e: (list(map(str, e.absolute_path)), e.message))
+        for e in errors:
+            where = "/".join(str(p) for p in e.absolute_path) or "(top level)"
+            msg = e.message if len(e.message) <= 200 else e.message[:197] + "..."
+            self.add("schema", f"manifest.json: {where}: {msg}")
+        if errors:
+            return False
+        self.manifest = m
+        return True
+
+    # -- files ----------------------------------------------------------------
+    def read_file(self, key: str) -> bytes | None:
+        entry = self.manifest["files"][key]
+        p = self.path / entry["path"]
+        try:
+            blob = p.read_bytes()
+        except FileNotFoundError:
+            self.add("io", f"{entry['path']}: missing ({key} file named by the manifest)")
+            return None
+        except IsADirectoryError:
+            self.add("io", f"{entry['path']}: is a directory, not a file")
+            return None
+        except OSError as e:
+            self.add("io", f"{entry['path']}: cannot read: {e.strerror}")
+            return None
+        if self.verify_hashes:
+            if len(blob) != entry["bytes"]:
+                self.add("hash", f"{entry['path']}: {len(blob)} bytes, the manifest says {entry['bytes']}")
+            digest = hashlib.sha256(blob).hexdigest()
+            if digest != entry["sha256"]:
+                self.add("hash", f"{entry['path']}: SHA-256 {digest[:12]}... differs from the "
+                         f"manifest's {entry['sha256'][:12]}...")
+        return blob
+
+    # -- coarse mesh ------------------------------------------------------------
+    def check_coarse(self, blob: bytes) -> None:
+        name = self.manifest["files"]["coarse_mesh"]["path"]
+        add = self.adder("mesh")
+        try:
+            v, f, uv = _parse_coarse(blob, name, add)
+        except _Fail:
+            return
+        n, m = len(v), len(f)
+        want = self.manifest["coarse"]
+        if n != want["vertices"] or m != want["triangles"]:
+            add(f"{name}: {n} vertices and {m} faces, the manifest says {want['vertices']} and "
+                f"{want['triangles']}")
+        if n < 3:
+            add(f"{name}: {n} vertices (at least 3 needed)")
+        if m < 1:
+            add(f"{name}: no faces")
+        bad = np.flatnonzero(~np.all(np.isfinite(v), axis=1))
+        if len(bad):
+            add(f"{name}: {_n(len(bad), 'vertex', 'vertices')} with non-finite positions: "
+                + _examples(list(bad), lambda k: f"vertex {k} = {v[k].tolist()}"))
+        oob = np.flatnonzero(np.any(f >= n, axis=1))
+        if len(oob):
+            add(f"{name}: {_n(len(oob), 'face')} with a vertex index out of range (vertex count {n}): "
+                + _examples(list(oob), lambda k: f"face {k} = {f[k].tolist()}"))
+        ok = ~np.any(f >= n, axis=1)
+        fi = f[ok].astype(np.int64)
+        if len(fi):
+            e1 = v[fi[:, 1]] - v[fi[:, 0]]
+            e2 = v[fi[:, 2]] - v[fi[:, 0]]
+            area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
+            same = (fi[:, 0] == fi[:, 1]) | (fi[:, 1] == fi[:, 2]) | (fi[:, 0] == fi[:, 2])
+            degen = np.flatnonzero(ok)[(same | (area2 == 0)) & np.isfinite(area2)]
+            if len(degen):
+                add(f"{name}: {_n(len(degen), 'degenerate face')} (zero area): "
+                    + _examples(list(degen), lambda k: f"face {k} = {f[k].tolist()}"))
+        uvf = uv.reshape(m, 6)
+        nonfinite = np.flatnonzero(~np.all(np.isfinite(uvf), axis=1))
+        if len(nonfinite):
+            add(f"{name}: {_n(len(nonfinite), 'face')} with non-finite UVs: "
+                + _examples(list(nonfinite), lambda k: f"face {k}"))
+        with np.errstate(invalid="ignore"):
+            outside = np.flatnonzero(np.any((uvf < 0) | (uvf > 1), axis=1))
+        if len(outside):
+            add(f"{name}: {_n(len(outside), 'face')} with UVs outside [0, 1]: "
+                + _examples(list(outside), lambda k: f"face {k} has {uv[k].tolist()}"))
+        self.coarse = (v, f, uv)
+
+    # -- atlas ------------------------------------------------------------------
+    def check_atlas(self, blob: bytes | None) -> None:
+        entry = self.manifest["files"]["atlas"]
+        name = entry["path"]
+        add = self.adder("atlas")
+        decl = self.manifest["atlas"]
+        if (decl["width"], decl["height"]) != (entry["width"], entry["height"]):
+            add(f"manifest.json: atlas is {decl['width']}x{decl['height']} but files.atlas says "
+                f"{entry['width']}x{entry['height']}")
+        if blob is None:
+            return
+        ex = _exr()
+        p = self.path / name
+        if not blob.startswith(b"\x76\x2f\x31\x01"):
+            add(f"{name}: not an OpenEXR file (bad magic number)")
+            return
+        f, why = _open_exr(p, header_only=True)
+        if f is None:
+            add(f"{name}: cannot read the OpenEXR header: {why or 'unknown error'}")
+            return
+        if len(f.parts) != 1:
+            add(f"{name}: {len(f.parts)} parts (a single-part scanline image is required)")
+            return
+        part = f.parts[0]
+        hdr = part.header
+        ok = True
+        if part.type() != ex.scanlineimage:
+            add(f"{name}: storage is {getattr(part.type(), 'name', part.type())}, "
+                "not a scanline image")
+            return
+        comp = _compression_name(part.compression())
+        if comp not in ATLAS_COMPRESSIONS:
+            add(f"{name}: compression {comp.upper()} is not allowed (ZIP or PIZ only)")
+        elif comp != entry["compression"]:
+            add(f"{name}: compression is {comp.upper()}, the manifest says {entry['compression'].upper()}")
+        dw = hdr.get("dataWindow")
+        dsp = hdr.get("displayWindow")
+        w, h = entry["width"], entry["height"]
+        want = [0, 0, w - 1, h - 1]
+        if dw is not None:
+            got = [int(dw[0][0]), int(dw[0][1]), int(dw[1][0]), int(dw[1][1])]
+            if got[:2] != [0, 0]:
+                add(f"{name}: data window starts at ({got[0]}, {got[1]}), not at (0, 0)")
+                ok = False
+            elif got != want:
+                add(f"{name}: image is {got[2] + 1}x{got[3] + 1}, the manifest says {w}x{h}")
+                ok = False
+        if dsp is not None:
+            got = [int(dsp[0][0]), int(dsp[0][1]), int(dsp[1][0]), int(dsp[1][1])]
+            if got != want:
+                add(f"{name}: display window is ({got[0]}, {got[1]}) - ({got[2]}, {got[3]}), "
+                    f"expected (0, 0) - ({w - 1}, {h - 1})")
+        chans = {c.name: c for c in hdr.get("channels", [])}
+        names = sorted(chans)
+        declared = sorted(entry["channels"])
+        missing = [c for c in declared if c not in names]
+        extra = [c for c in names if c not in declared]
+        for c in missing:
+            add(f"{name}: missing channel {c!r} (channels present: {', '.join(names) or 'none'})")
+            ok = False
+        if extra:
+            add(f"{name}: channels {', '.join(extra)} are not declared in the manifest")
+        for c in names:
+            chan = chans[c]
+            if chan.xSampling != 1 or chan.ySampling != 1:
+                add(f"{name}: channel {c!r} is subsampled ({chan.xSampling}x{chan.ySampling})")
+                ok = False
+        if not ok:
+            return
+        f, why = _open_exr(p, header_only=False)
+        if f is None or len(f.parts) != 1:
+            add(f"{name}: cannot decode the pixel data: {why or 'unknown error'}")
+            return
+        part = f.parts[0]
+        # The binding gives each channel's pixels in its stored type (FLOAT -> float32,
+        # HALF -> float16, UINT -> uint32); the header alone does not expose it.
+        for c in names:
+            dt = np.asarray(part.channels[c].pixels).dtype
+            if dt != np.float32:
+                kind = {np.dtype(np.float16): "HALF", np.dtype(np.uint32): "UINT"}.get(dt, str(dt))
+                add(f"{name}: channel {c!r} has pixel type {kind}, the manifest says "
+                    f"{entry['pixel_type'].upper()}")
+                ok = False
+        if not ok:
+            return
+        atlas = np.stack([np.asarray(part.channels[c].pixels, dtype=np.float32) for c in "RGBA"], axis=-1)
+        if atlas.shape[:2] != (h, w):
+            add(f"{name}: decoded pixels are {atlas.shape[1]}x{atlas.shape[0]}, expected {w}x{h}")
+            return
+        self.atlas = atlas
+        if not self.invariants:
+            return
+        alpha = atlas[:, :, 3]
+        with np.errstate(invalid="ignore"):
+            bad_a = np.argwhere(np.isfinite(alpha) & (alpha != 0) & (alpha != 1))
+        if len(bad_a):
+            j, i = bad_a[0]
+            add(f"{name}: {_n(len(bad_a), 'texel')} with coverage A other than 0 or 1 "
+                f"(first: texel ({i}, {j}) has A = {alpha[j, i]})")
+
+    def check_atlas_footprints(self) -> None:
+        """Every texel that a bilinear lookup inside a UV triangle reads must be finite
+        and filled (covered, or within the gutter of a covered texel)."""
+        if self.atlas is None or self.coarse is None or not self.invariants:
+            return
+        name = self.manifest["files"]["atlas"]["path"]
+        gutter = int(self.manifest["atlas"]["gutter"])
+        atlas = self.atlas
+        h, w = atlas.shape[:2]
+        v, f, uv = self.coarse
+        finite = np.all(np.isfinite(atlas), axis=2)
+        covered = finite & (atlas[:, :, 3] == 1)
+        # filled = within Chebyshev distance `gutter` of a covered texel
+        from scipy.ndimage import maximum_filter
+        filled = maximum_filter(covered.astype(np.uint8), size=2 * gutter + 1, mode="constant") > 0
+        read = np.zeros((h, w), dtype=bool)
+        nonfinite_tris, unfilled_tris = [], []
+        uv_ok = np.all(np.isfinite(uv.reshape(len(uv), 6)), axis=1)
+        for t in np.flatnonzero(uv_ok):
+            ci, cj = _footprint_texels(uv[t].astype(np.float64), w, h)
+            if len(ci) == 0:
+                continue
+            read[cj, ci] = True
+            nf = ~finite[cj, ci]
+            if nf.any():
+                k = np.flatnonzero(nf)[0]
+                nonfinite_tris.append((t, int(nf.sum()), int(ci[k]), int(cj[k])))
+            uf = ~filled[cj, ci] & finite[cj, ci]
+            if uf.any():
+                k = np.flatnonzero(uf)[0]
+                unfilled_tris.append((t, int(uf.sum()), int(ci[k]), int(cj[k])))
+        if nonfinite_tris:
+            self.add("atlas", f"{name}: bilinear lookups inside {_n(len(nonfinite_tris), 'UV triangle')} read "
+                     "non-finite texels: " + _examples(
+                         nonfinite_tris, lambda x: f"triangle {x[0]} reads {x[1]}, e.g. texel ({x[2]}, {x[3]})"))
+        if unfilled_tris:
+            self.add("atlas", f"{name}: bilinear lookups inside {_n(len(unfilled_tris), 'UV triangle')} read "
+                     f"texels that are neither covered nor within the gutter ({gutter}) of a covered "
+                     "texel: " + _examples(
+                         unfilled_tris, lambda x: f"triangle {x[0]} reads {x[1]}, e.g. texel ({x[2]}, {x[3]})"))
+        stray = np.argwhere(~finite & ~read)
+        if len(stray):
+            j, i = stray[0]
+            self.add("atlas", f"{name}: {_n(len(stray), 'non-finite texel')} outside every UV triangle's "
+                     f"footprint (first: texel ({i}, {j})); unused texels must hold 0")
+
+    # -- pieces -------------------------------------------------------------------
+    def check_pieces(self, blob: bytes) -> None:
+        name = self.manifest["files"]["pieces"]["path"]
+        add = self.adder("pieces")
+        try:
+            v, vp, f, fp, maps = _parse_pieces(blob, name, add)
+        except _Fail:
+            return
+        p = len(maps)
+        if p != self.manifest["pieces"]["count"]:
+            add(f"{name}: {p} pieces, the manifest says {self.manifest['pieces']['count']}")
+        if p == 0:
+            add(f"{name}: no pieces")
+            return
+        structural_ok = True
+        if len(vp) and np.any(vp >= p):
+            k = int(np.flatnonzero(vp >= p)[0])
+            add(f"{name}: vertex {k} has piece id {vp[k]} (pieces are 0..{p - 1})")
+            structural_ok = False
+        if len(fp) and np.any(fp >= p):
+            k = int(np.flatnonzero(fp >= p)[0])
+            add(f"{name}: face {k} has piece id {fp[k]} (pieces are 0..{p - 1})")
+            structural_ok = False
+        if len(vp) > 1 and np.any(np.diff(vp.astype(np.int64)) < 0):
+            k = int(np.flatnonzero(np.diff(vp.astype(np.int64)) < 0)[0]) + 1
+            add(f"{name}: vertices are not stored piece by piece (vertex {k} has piece {vp[k]} "
+                f"after piece {vp[k - 1]})")
+            structural_ok = False
+        if len(fp) > 1 and np.any(np.diff(fp.astype(np.int64)) < 0):
+            k = int(np.flatnonzero(np.diff(fp.astype(np.int64)) < 0)[0]) + 1
+            add(f"{name}: faces are not stored piece by piece (face {k} has piece {fp[k]} "
+                f"after piece {fp[k - 1]})")
+            structural_ok = False
+        oob = np.flatnonzero(np.any(f >= len(v), axis=1))
+        if len(oob):
+            add(f"{name}: {_n(len(oob), 'face')} with a vertex index out of range (vertex count {len(v)}): "
+                + _examples(list(oob), lambda k: f"face {k} = {f[k].tolist()}"))
+            structural_ok = False
+        else:
+            wrong = np.flatnonzero(np.any(vp[f] != fp[:, None], axis=1)) if len(f) else np.zeros(0, int)
+            if len(wrong):
+                add(f"{name}: {_n(len(wrong), 'face')} using vertices of another piece: "
+                    + _examples(list(wrong), lambda k: f"face {k} (piece {fp[k]}) uses vertices of pieces "
+                                f"{sorted(set(vp[f[k]].tolist()))}"))
+                structural_ok = False
+        bad = np.flatnonzero(~np.all(np.isfinite(v), axis=1))
+        if len(bad):
+            add(f"{name}: {_n(len(bad), 'vertex', 'vertices')} with non-finite positions (first: vertex {bad[0]})")
+            structural_ok = False
+        m_coarse = len(self.coarse[1]) if self.coarse is not None else self.manifest["coarse"]["triangles"]
+        for k, mp in enumerate(maps):
+            if len(mp) and int(mp.max()) >= m_coarse:
+                add(f"{name}: piece {k} maps to coarse triangle {int(mp.max())}, out of range "
+                    f"(coarse triangle count {m_coarse})")
+            if len(mp) > 1 and np.any(np.diff(mp.astype(np.int64)) <= 0):
+                add(f"{name}: coarse_faces of piece {k} are not ascending and unique")
+        if not structural_ok:
+            return
+        vstart = np.searchsorted(vp, np.arange(p + 1))
+        fstart = np.searchsorted(fp, np.arange(p + 1))
+        if self.coarse is not None:
+            diag = _bbox_diagonal(self.coarse[0])
+        else:
+            diag = _bbox_diagonal(v)
+        tol = convexity_tolerance(diag)
+        small, open_, inward, nonconvex, degen = [], [], [], [], []
+        for k in range(p):
+            pv = v[vstart[k]:vstart[k + 1]]
+            pf = f[fstart[k]:fstart[k + 1]].astype(np.int64) - vstart[k]
+            if len(pv) < 4 or len(pf) < 4:
+                small.append((k, len(pv), len(pf)))
+                continue
+            if not self.invariants:
+                continue
+            # closed and consistently wound: every directed edge once, its reverse once
+            e = np.concatenate([pf[:, [0, 1]], pf[:, [1, 2]], pf[:, [2, 0]]])
+            key = e[:, 0] * len(pv) + e[:, 1]
+            rkey = e[:, 1] * len(pv) + e[:, 0]
+            uniq, cnt = np.unique(key, return_counts=True)
+            if np.any(cnt != 1) or not np.all(np.isin(rkey, uniq)):
+                open_.append(k)
+                continue
+            a, b, c = pv[pf[:, 0]], pv[pf[:, 1]], pv[pf[:, 2]]
+            nrm = np.cross(b - a, c - a)
+            ln = np.linalg.norm(nrm, axis=1)
+            if np.any(ln == 0):
+                degen.append((k, int(np.flatnonzero(ln == 0)[0])))
+                continue
+            ctr = pv.mean(axis=0)
+            vol = np.einsum("ij,ij->", a - ctr, np.cross(b - ctr, c - ctr)) / 6.0
+            if vol <= 0:
+                inward.append((k, vol))
+                continue
+            nrm /= ln[:, None]
+            # signed distance of every vertex of the piece to every face plane
+            dist = np.einsum("fk,fvk->fv", nrm, pv[None, :, :] - a[:, None, :])
+            worst = dist.max()
+            if worst > tol:
+                fi, vi = np.unravel_index(int(np.argmax(dist)), dist.shape)
+                nonconvex.append((k, float(worst), int(fi), int(vi)))
+        if small:
+            add(f"{name}: {_n(len(small), 'piece')} with fewer than 4 vertices or 4 faces: "
+                + _examples(small, lambda x: f"piece {x[0]} has {x[1]} vertices, {x[2]} faces"))
+        if open_:
+            add(f"{name}: {_n(len(open_), 'piece')} not a closed, consistently wound polyhedron: "
+                + _examples(open_, lambda k: f"piece {k}"))
+        if degen:
+            add(f"{name}: {_n(len(degen), 'piece')} with a zero-area face: "
+                + _examples(degen, lambda x: f"piece {x[0]} face {x[1]} (local)"))
+        if inward:
+            add(f"{name}: {_n(len(inward), 'piece')} wound inward (negative volume): "
+                + _examples(inward, lambda x: f"piece {x[0]} (volume {x[1]:.3g} m^3)"))
+        if nonconvex:
+            add(f"{name}: {_n(len(nonconvex), 'piece')} not convex (tolerance {tol:.3g} m): "
+                + _examples(nonconvex, lambda x: f"piece {x[0]}: vertex {x[3]} lies {x[1]:.3g} m in front "
+                            f"of face {x[2]} (local indices)"))
+        self.pieces = (v, vp, f, fp, maps, vstart, fstart)
+
+    # -- everything ---------------------------------------------------------------
+    def run(self) -> Bundle | None:
+        if not self.load_manifest():
+            return None
+        blobs = {key: self.read_file(key) for key in ("coarse_mesh", "atlas", "pieces")}
+        if blobs["coarse_mesh"] is not None:
+            self.check_coarse(blobs["coarse_mesh"])
+        self.check_atlas(blobs["atlas"])
+        self.check_atlas_footprints()
+        if blobs["pieces"] is not None:
+            self.check_pieces(blobs["pieces"])
+        # Stable order: by error class as in the spec, then by discovery.
+        order = {c: k for k, c in enumerate(ERROR_CLASSES)}
+        self.problems.sort(key=lambda pr: order[pr.cls])
+        if self.problems or self.coarse is None or self.atlas is None or self.pieces is None:
+            return None
+        v, f, uv = self.coarse
+        pv, _, pf, _, maps, vstart, fstart = self.pieces
+        p = len(maps)
+        manifest = self.manifest
+        return Bundle(
+            coarse_vertices=v, coarse_faces=f, coarse_uvs=uv, atlas=self.atlas,
+            piece_vertices=[pv[vstart[k]:vstart[k + 1]] for k in range(p)],
+            piece_faces=[(pf[fstart[k]:fstart[k + 1]].astype(np.int64) - vstart[k]).astype(np.uint32)
+                         for k in range(p)],
+            piece_coarse_faces=list(maps), manifest=manifest, path=self.path)
+
+
+def validate_bundle(path: str | os.PathLike) -> list[Problem]:
+    """Every problem of the bundle at ``path`` (empty list: valid), ordered by class
+    (io, version, schema, hash, mesh, atlas, pieces)."""
+    return check_bundle(path)[1]
+
+
+def check_bundle(path: str | os.PathLike) -> tuple[dict | None, list[Problem]]:
+    """(manifest, problems): the manifest when it is readable, of version 1.x and
+    schema-valid (else None), and every problem as :func:`validate_bundle` lists it."""
+    checker = _Checker(path, verify_hashes=True, invariants=True)
+    checker.run()
+    return checker.manifest, checker.problems
+
+
+def read_bundle(path: str | os.PathLike, *, verify: bool = True) -> Bundle:
+    """Read a bundle; raise BundleError(cls, message) for its first problem.
+
+    ``verify=False`` skips the SHA-256 checks and the costlier invariants (piece
+    convexity, atlas footprints) but still checks the structure (headers, sizes,
+    index ranges, channels)."""
+    checker = _Checker(path, verify_hashes=verify, invariants=verify)
+    bundle = checker.run()
+    if checker.problems:
+        first = checker.problems[0]
+        raise BundleError(first.cls, first.message)
+    assert bundle is not None
+    return bundle

@@ -1,0 +1,262 @@
+"""The ``hbake`` command: a thin click layer over the library.
+
+``hbake bake`` turns its options into a ``BakeSettings`` (defaults, then ``--config``,
+then ``--set``, then the named options) and calls ``hbake.bake``. Every user-facing
+failure prints one line, ``hbake: error: <message>``, and exits with the code of its
+error class (``hbake.errors``); Ctrl-C and SIGTERM print ``hbake: interrupted`` and
+exit with 130, leaving no partial output.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+from pathlib import Path
+
+import click
+
+from hbake import __version__
+from hbake.errors import (EXIT_INTERRUPTED, ConfigError, HbakeError, OutputUnwritableError)
+
+#: Exit code of an unexpected exception (a bug): distinct from every error class.
+EXIT_INTERNAL = 1
+
+CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
+
+
+@click.group(context_settings=CONTEXT)
+@click.version_option(__version__, prog_name="hbake")
+def main() -> None:
+    """Bake high-resolution meshes into haptic bundles (coarse mesh, haptic texture,
+    convex pieces) for 6-DoF haptic texture rendering (Otaduy et al. 2004)."""
+
+
+def _parse_atlas_size(ctx, param, value):
+    if value is None:
+        return None
+    text = value.lower().strip()
+    try:
+        if "x" in text:
+            w, h = text.split("x", 1)
+            size = (int(w), int(h))
+        else:
+            size = (int(text), int(text))
+    except ValueError:
+        raise click.BadParameter(f"{value!r}: expected N or WxH, e.g. 1024 or 2048x1024") from None
+    if min(size) <= 0:
+        raise click.BadParameter(f"{value!r}: sizes must be positive")
+    return size
+
+
+@main.command("bake", context_settings=CONTEXT)
+@click.argument("input", type=click.Path(path_type=Path, dir_okay=True))
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
+              help="Bundle directory to write (name ending in .hbundle).")
+@click.option("-c", "--config", "config", type=click.Path(path_type=Path),
+              help="TOML settings file (see configs/); options below override it.")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+              help="Override any setting, e.g. --set simplify.quality_threshold=0.5 "
+                   "(repeatable; VALUE is a TOML value).")
+@click.option("--method", type=click.Choice(["cage", "pp"]),
+              help="Baking route [default: cage]; 'pp' is reserved.")
+@click.option("--units", type=click.Choice(["mm", "cm", "m", "in"]),
+              help="Unit of the input coordinates [default: from the file, else meters "
+                   "with a warning].")
+@click.option("--target-faces", type=int, help="Coarse triangle count [default: 600].")
+@click.option("--atlas-size", callback=_parse_atlas_size, metavar="N|WxH",
+              help="Atlas size in texels [default: 1024].")
+@click.option("--gutter", type=int, help="Gutter width in texels [default: 4].")
+@click.option("--seed", type=int, help="Seed of CoACD and the quality sampling [default: 0].")
+@click.option("--samples", type=int, help="Samples per direction of the reconstruction "
+                                          "error [default: 100000].")
+@click.option("--report", type=click.Path(path_type=Path),
+              help="Also write timings, peak memory and the manifest as JSON here "
+                   "(outside the bundle: timings are not deterministic).")
+@click.option("-f", "--force", is_flag=True, help="Replace an existing bundle.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress, summary or warnings "
+                                                  "(errors are still printed).")
+def bake_command(input, output, config, sets, method, units, target_faces, atlas_size,
+                 gutter, seed, samples, report, force, quiet):
+    """Bake INPUT (OBJ, PLY, STL, OFF, glTF/GLB) into the bundle OUTPUT.
+
+    Exit codes: 0 ok, 1 internal error, 2 bad option, 3 input missing, 4 input invalid,
+    5 output exists, 6 output not writable, 7 bake failed, 8 bad config, 130 interrupted.
+    """
+    from hbake.progress import Progress
+
+    # SIGINT and SIGTERM both end the bake cleanly (KeyboardInterrupt unwinds through
+    # write_bundle, which removes its temporary directory). SIGINT is set explicitly
+    # because a shell starts background jobs with it ignored.
+    previous = {sig: signal.signal(sig, _raise_interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    progress = None
+    try:
+        settings = build_settings(config, sets, method=method, units=units,
+                                  target_faces=target_faces, atlas_size=atlas_size,
+                                  gutter=gutter, seed=seed, samples=samples)
+        if report is not None:
+            _check_report_path(report)
+        from hbake.pipeline import bake
+
+        progress = Progress(quiet=quiet)
+        result = bake(input, output, settings, progress, force=force)
+        progress.close()
+        if report is not None:
+            _write_json(report, result)
+        if not quiet:
+            print_summary(result)
+    except HbakeError as exc:
+        if progress is not None:
+            progress.close()
+        click.echo(f"hbake: error: {exc}", err=True)
+        sys.exit(exc.exit_code)
+    except KeyboardInterrupt:
+        if progress is not None:
+            progress.close()
+        click.echo("hbake: interrupted", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+    except Exception as exc:  # a bug, or a library failing in a way we do not know yet
+        if progress is not None:
+            progress.close()
+        if os.environ.get("HBAKE_DEBUG"):
+            raise
+        click.echo(f"hbake: internal error: {type(exc).__name__}: {exc} "
+                   f"(set HBAKE_DEBUG=1 for a traceback; please report it)", err=True)
+        sys.exit(EXIT_INTERNAL)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def build_settings(config=None, sets=(), **named):
+    """Defaults < --config < --set < named options; returns a BakeSettings."""
+    from hbake.settings import BakeSettings, parse_value
+
+    settings = BakeSettings.from_toml(config) if config is not None else BakeSettings()
+    overrides = {}
+    for item in sets:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set {item}: expected KEY=VALUE")
+        overrides[key.strip()] = parse_value(value.strip())
+    mapping = {"method": "method", "units": "load.units", "target_faces": "simplify.target_faces",
+               "gutter": "atlas.gutter", "seed": "seed", "samples": "quality.samples"}
+    for name, key in mapping.items():
+        if named.get(name) is not None:
+            overrides[key] = named[name]
+    if named.get("atlas_size") is not None:
+        overrides["parameterize.atlas_width"], overrides["parameterize.atlas_height"] = named["atlas_size"]
+    if overrides:
+        settings = settings.with_overrides(overrides, source="command line")
+    return settings
+
+
+def _check_report_path(path: Path) -> None:
+    parent = path.absolute().parent
+    if not parent.is_dir():
+        raise OutputUnwritableError(f"--report: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise OutputUnwritableError(f"--report: directory {parent} is not writable")
+
+
+def _write_json(path: Path, data: dict) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise OutputUnwritableError(f"--report {path}: {exc.strerror}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _len(x: float) -> str:
+    """A length in the most readable of m, mm, um."""
+    a = abs(x)
+    if a >= 0.1 or a == 0:
+        return f"{x:.4g} m"
+    if a >= 1e-4:
+        return f"{x * 1e3:.4g} mm"
+    return f"{x * 1e6:.4g} um"
+
+
+def print_summary(result: dict) -> None:
+    """The summary table of a bake (stdout)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    m = result["manifest"]
+    q = m["quality"]
+    texel = m["atlas"]["texel_size"]
+    table = Table(title=f"hbake: {m['source']['name']} -> {result['output']}", show_header=False,
+                  title_justify="left")
+    table.add_column("what", style="bold")
+    table.add_column("value")
+    rows = [
+        ("triangles", f"{m['source']['triangles']:,} -> {m['coarse']['triangles']:,} coarse"),
+        ("convex pieces", f"{m['pieces']['count']}"),
+        ("atlas", f"{m['atlas']['width']} x {m['atlas']['height']}, texel {_len(texel)}, "
+                  f"coverage {100 * m['atlas']['coverage']:.1f}%"),
+        ("min wavelength", _len(q["min_wavelength"])),
+        ("displacement", f"out {_len(q['displacement_outward'])}, in {_len(q['displacement_inward'])}"),
+        ("hull deviation", f"{_len(q['hull_deviation'])}, volume excess "
+                           f"{100 * q['hull_volume_excess']:.1f}%"),
+    ]
+    for key, label in (("coarse_to_full", "error coarse->full"), ("full_to_coarse", "error full->coarse")):
+        e = q["reconstruction"][key]
+        rows.append((label, f"mean {_len(e['mean'])}, p95 {_len(e['p95'])} "
+                            f"({e['p95'] / texel:.2g} texel), max {_len(e['max'])}"))
+    ms = m["mass"]
+    rows.append(("mass (unit density)", f"{ms['basis']}: volume {ms['volume']:.4g} m^3, "
+                                        f"COM [{', '.join(f'{c:.4g}' for c in ms['center_of_mass'])}]"))
+    rows.append(("time", ", ".join(f"{k} {v:.2f}s" for k, v in result["timings"].items())
+                 + f"; total {result['total_seconds']:.1f} s"))
+    rows.append(("peak memory", f"{result['peak_rss_bytes'] / 2**20:,.0f} MiB"))
+    if m["warnings"]:
+        rows.append(("warnings", f"{len(m['warnings'])} (in manifest.json)"))
+    for r in rows:
+        table.add_row(*r)
+    Console(soft_wrap=False).print(table)
+
+
+# --- other commands --------------------------------------------------------------------
+from hbake.cli_bundle import inspect, validate  # noqa: E402
+
+main.add_command(validate)
+main.add_command(inspect)
+
+from hbake.bench import bench_command  # noqa: E402
+
+main.add_command(bench_command, "bench")
+
+
+@main.command("generate", context_settings=CONTEXT)
+@click.argument("name")
+@click.argument("path", type=click.Path(path_type=Path))
+def generate_command(name, path):
+    """Write the procedural test model NAME to PATH (.ply, .stl, .obj, .off; meters).
+
+    Models: ridged_block, ridged_gear, wrinkled_torus, grating, cad_part, rasp."""
+    from hbake.procedural import MODELS, generate
+
+    if name not in MODELS:
+        click.echo(f"hbake: error: unknown model {name!r} (known: {', '.join(MODELS)})", err=True)
+        sys.exit(2)
+    try:
+        mesh = generate(name, path)
+    except KeyboardInterrupt:
+        click.echo("hbake: interrupted", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+    except (OSError, ValueError) as exc:
+        click.echo(f"hbake: error: {path}: {exc}", err=True)
+        sys.exit(6)
+    click.echo(f"{path}: {name}, {len(mesh.faces):,} triangles (meters)")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

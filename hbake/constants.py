@@ -1,0 +1,116 @@
+"""Tolerances and defaults of hbake, in one place.
+
+Every default of a setting (``hbake/settings.py``) and every numerical
+tolerance used by a stage is defined here, with the reason for its value, so
+that a reviewer can audit them together and tests can refer to them by name.
+Lengths are in meters unless a name says ``_REL`` (relative to the bounding-box
+diagonal of the full-resolution mesh) or ``_TEXELS``.
+"""
+from __future__ import annotations
+
+# --- units ---------------------------------------------------------------------------------
+#: Meters per source unit. The bundle is always in meters (docs/bundle-format.md).
+UNIT_SCALE: dict[str, float] = {"mm": 1e-3, "cm": 1e-2, "m": 1.0, "in": 0.0254}
+#: File extensions whose format fixes the unit (glTF 2.0 mandates meters).
+UNIT_FROM_FORMAT: dict[str, str] = {".gltf": "m", ".glb": "m"}
+#: Extensions hbake reads (through trimesh). PLY and STL may be ASCII or binary.
+SUPPORTED_EXTENSIONS = (".obj", ".ply", ".stl", ".off", ".gltf", ".glb")
+
+# --- load and repair -----------------------------------------------------------------------
+#: A face is degenerate (zero area) when its height is below this fraction of its longest
+#: edge: a shape criterion, so tiny but well-shaped triangles of big CAD parts stay (the
+#: shared planetary_gears.stl has genuine faces of area 4e-13 diag**2). 1e-9 sits above
+#: the float64 round-off of a collinear triple (~1e-16 |coordinate| / edge) for parts up to
+#: 1e5 edge lengths away from the origin.
+DEGENERATE_HEIGHT_REL = 1e-9
+
+# --- simplify ------------------------------------------------------------------------------
+#: Default coarse triangle count: Table 1 of the paper has 518-720 coarse triangles
+#: for 285k-658k-triangle models.
+DEFAULT_TARGET_FACES = 600
+#: pymeshlab's quadric collapse rejects collapses that create triangles of lower
+#: quality (0..1, 1 = equilateral) than this; 0.3 is MeshLab's default.
+DEFAULT_QUALITY_THRESHOLD = 0.3
+#: Inputs with more faces than DEFAULT_PRE_DECIMATE_ABOVE are first reduced to
+#: DEFAULT_PRE_DECIMATE_FACES by fast-simplification (about 1.5 s for 650k faces) before
+#: pymeshlab's slower but topology-preserving collapse (about 25 us per face, run twice
+#: for the two placements) finishes the job. The pre-pass costs accuracy on relief-covered
+#: blocks (the ridged block at 16 faces: two-sided mean distance 0.46 mm without it,
+#: 2.3 mm with it), so smaller inputs skip it; at 100k faces the two collapses take about
+#: 8 s of the 30 s budget of issue 2.
+DEFAULT_PRE_DECIMATE_ABOVE = 100_000
+DEFAULT_PRE_DECIMATE_FACES = 40_000
+#: Samples per side (and their seed) scoring the two vertex placements of the collapse.
+SCORE_SAMPLES = 20_000
+SCORE_SEED = 0
+#: fast-simplification's aggressiveness (its default is 7).
+PRE_DECIMATE_AGGRESSIVENESS = 7
+
+# --- parameterize --------------------------------------------------------------------------
+#: The paper stores 1024x1024 float textures (Sec. 6.2).
+DEFAULT_ATLAS_SIZE = 1024
+#: Texels between charts (xatlas ``padding``); with ``bilinear`` packing this keeps every
+#: bilinear footprint of one chart off the texels of another, so no lookup crosses a seam.
+DEFAULT_PADDING = 2
+#: xatlas chart growing: cost limit and weight of normal deviation (xatlas defaults 2, 2).
+DEFAULT_MAX_CHART_COST = 2.0
+DEFAULT_NORMAL_DEVIATION_WEIGHT = 2.0
+#: The packer is rerun with a smaller texel density until the atlas fits the requested
+#: size; stop when the density is known to within this ratio.
+PACK_SEARCH_RATIO = 1.02
+PACK_SEARCH_MAX_STEPS = 14
+
+# --- cage bake -----------------------------------------------------------------------------
+#: Rays from the coarse surface reach at most this fraction of the bbox diagonal;
+#: farther (or no) hits fall back to the closest point. The coarse meshes of the shared
+#: models deviate from the full mesh by at most ~3 percent of the diagonal (measured
+#: Hausdorff distances at 600 faces), so 5 percent keeps every genuine hit.
+DEFAULT_MAX_RAY_DISTANCE_REL = 0.05
+#: Texels whose centre lies within this distance (texels, Euclidean) of a UV triangle are
+#: baked from that triangle (extrapolated past its edges): a bilinear lookup at a point
+#: inside a UV triangle reads texels at Chebyshev distance < 1, i.e. Euclidean < sqrt(2).
+BAKE_BORDER_TEXELS = 1.5
+#: A texel centre counts as inside a UV triangle (coverage 1) when all its barycentric
+#: coordinates are >= -this (a texel centre on a shared edge belongs to both triangles;
+#: the lower triangle id wins).
+INSIDE_EPS = 1e-9
+#: Rays are traced in chunks of this many texels (bounded memory, progress updates).
+RAY_CHUNK = 1 << 18
+#: Default gutter width (texels, Chebyshev) of docs/bundle-format.md.
+DEFAULT_GUTTER = 4
+DEFAULT_COMPRESSION = "zip"
+
+# --- decompose -----------------------------------------------------------------------------
+#: CoACD parameters. Threshold, resolutions and depth are CoACD's defaults; the tree
+#: search is narrowed from CoACD's 20 nodes x 150 iterations to 10 x 50: on the 600-face
+#: coarse meshes of rocker_arm.obj and fandisk.obj this cuts CoACD's CPU time from 19.6 s
+#: to 9.0 s and from 24.7 s to 15.8 s for 37 instead of 34 and 33 instead of 30 pieces
+#: (CoACD dominates the bake time of CAD parts; issue 2 budgets 30 s for 650k triangles).
+DEFAULT_COACD_THRESHOLD = 0.05
+DEFAULT_COACD_PREPROCESS_RESOLUTION = 50
+DEFAULT_COACD_RESOLUTION = 2000
+DEFAULT_COACD_MCTS_NODES = 10
+DEFAULT_COACD_MCTS_ITERATIONS = 50
+DEFAULT_COACD_MCTS_MAX_DEPTH = 3
+#: A coarse triangle belongs to a piece when it lies within this fraction of the coarse
+#: bbox diagonal of the piece's hull. CoACD's hulls contain the surface they were cut
+#: from, so the tolerance only absorbs float32 storage and qhull round-off; 1e-3 also
+#: adds the neighbours that touch a piece along a cut.
+DEFAULT_MAP_TOLERANCE_REL = 1e-3
+#: Pieces are convex within this (docs/bundle-format.md): 1e-6 * bbox_diagonal + 1e-9 m.
+CONVEX_TOLERANCE_REL = 1e-6
+CONVEX_TOLERANCE_ABS = 1e-9
+
+# --- quality -------------------------------------------------------------------------------
+#: Samples per direction of the reconstruction error (issue 2: at least 100k).
+DEFAULT_QUALITY_SAMPLES = 100_000
+MIN_QUALITY_SAMPLES = 1_000
+#: Sec. 7.2: the atlas represents relief down to a wavelength of two texels.
+MIN_WAVELENGTH_TEXELS = 2.0
+#: Relief is reported as finer than the atlas can hold when the full surface strays
+#: from the baked surface by more than this many texel sizes (p95) ...
+RELIEF_WARN_P95_TEXELS = 0.5
+#: ... and the full mesh has edges shorter than the shortest representable wavelength.
+
+# --- seeds ---------------------------------------------------------------------------------
+DEFAULT_SEED = 0

@@ -1,0 +1,204 @@
+"""Stage 3: parameterize the coarse mesh into a texture atlas (xatlas).
+
+xatlas cuts the coarse mesh into charts, flattens and packs them. Its ``resolution``
+alone is not a hard cap (a 600-triangle hammer asked for 1024 comes out 1444 x 759), so
+the texel density ``texels_per_unit`` is searched by bisection for the densest packing
+that fits: for a square atlas, xatlas packs into pages of exactly ``W x W`` and the
+search keeps a single page; for a non-square one, xatlas sizes one atlas to the content
+(``resolution = 0``) and the search keeps it within ``W x H``. Charts keep ``padding``
+texels between them and
+xatlas's ``bilinear`` margin, so a bilinear lookup inside one chart never reads a texel
+another chart covers.
+
+Output UVs are per corner, normalised to the requested atlas in the convention of
+docs/bundle-format.md: texel column ``x = u W - 0.5``, row ``y = (1 - v) H - 0.5``
+(row 0 at the top, v up). xatlas's pixel grid maps to texel rows from the top, so a
+chart texel of xatlas is a texel of the bundle's atlas.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from hbake import constants as C
+from hbake.errors import BakeFailedError
+from hbake.geometry import face_areas
+from hbake.settings import ParameterizeSettings
+
+
+@dataclass
+class Parameterization:
+    uvs: np.ndarray            # (M, 3, 2) float32 per-corner UVs in [0, 1]
+    width: int                 # atlas size (texels), as requested
+    height: int
+    packed_width: int          # extent xatlas used (<= width, height)
+    packed_height: int
+    charts: int
+    texels_per_unit: float     # texels per meter
+    utilization: float         # fraction of the packed extent covered by charts
+
+
+def parameterize(vertices: np.ndarray, faces: np.ndarray,
+                 settings: ParameterizeSettings | None = None) -> Parameterization:
+    settings = settings or ParameterizeSettings()
+    W, H = settings.atlas_width, settings.atlas_height
+    area = float(face_areas(vertices, faces).sum())
+    if not area > 0:
+        raise BakeFailedError("cannot parameterize: the coarse mesh has no area")
+
+    # Start from the density at which the charts, without padding or distortion, would
+    # fill W x H; walk up while that fits, then down until it fits, then bisect.
+    lo = hi = math.sqrt(W * H / area)
+    best = None
+    # Walk down until the packing fits, then bisect between fitting and not fitting.
+    for _ in range(C.PACK_SEARCH_MAX_STEPS):
+        res = _pack(vertices, faces, settings, hi)
+        if res is None:
+            break
+        lo, best = hi, res
+        hi *= 1.4
+    if best is None:
+        for _ in range(C.PACK_SEARCH_MAX_STEPS):
+            lo *= 0.7
+            res = _pack(vertices, faces, settings, lo)
+            if res is not None:
+                best = res
+                break
+            hi = lo
+    if best is None:
+        raise BakeFailedError(f"could not pack the charts into a {W}x{H} atlas")
+    steps = 0
+    while hi / lo > C.PACK_SEARCH_RATIO and steps < C.PACK_SEARCH_MAX_STEPS:
+        mid = math.sqrt(lo * hi)
+        res = _pack(vertices, faces, settings, mid)
+        if res is not None:
+            lo, best = mid, res
+        else:
+            hi = mid
+        steps += 1
+    best.uvs = snap_small_charts(faces, best.uvs, W, H)
+    return best
+
+
+def covered_triangles(uvs: np.ndarray, W: int, H: int) -> np.ndarray:
+    """Whether each UV triangle contains at least one texel centre."""
+    p = np.empty(uvs.shape[:2] + (2,))
+    p[..., 0] = uvs[..., 0].astype(np.float64) * W - 0.5
+    p[..., 1] = (1.0 - uvs[..., 1].astype(np.float64)) * H - 0.5
+    lo = np.maximum(np.ceil(p.min(axis=1)).astype(np.int64), 0)
+    hi = np.minimum(np.floor(p.max(axis=1)).astype(np.int64), [W - 1, H - 1])
+    nx = np.maximum(hi[:, 0] - lo[:, 0] + 1, 0)
+    ny = np.maximum(hi[:, 1] - lo[:, 1] + 1, 0)
+    cnt = nx * ny
+    t = np.repeat(np.arange(len(uvs)), cnt)
+    k = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    q = np.stack([lo[t, 0] + k % nx[t], lo[t, 1] + k // nx[t]], axis=1).astype(np.float64)
+    a, b, c = p[t, 0], p[t, 1], p[t, 2]
+    v0, v1, v2 = b - a, c - a, q - a
+    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+    den = np.where(den == 0, 1e-300, den)
+    beta = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
+    gamma = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
+    inside = (beta >= -C.INSIDE_EPS) & (gamma >= -C.INSIDE_EPS) & (1 - beta - gamma >= -C.INSIDE_EPS)
+    return np.bincount(t[inside], minlength=len(uvs)) > 0
+
+
+def snap_small_charts(faces: np.ndarray, uvs: np.ndarray, W: int, H: int) -> np.ndarray:
+    """Shift every chart that contains no texel centre by less than half a texel so that
+    the centroid of its largest UV triangle lands on a texel centre.
+
+    A chart smaller than a texel (slivers) may cover no texel centre; its lookups would
+    then read only gutter texels, which docs/bundle-format.md defines around covered
+    texels. After the shift the chart covers at least that texel. xatlas keeps charts
+    ``padding`` (>= 2) texels plus a bilinear margin apart, so a shift of at most half a
+    texel per axis keeps them apart.
+    """
+    charts = chart_labels(faces, uvs)
+    has = np.zeros(charts.max() + 1, dtype=bool)
+    has[charts[covered_triangles(uvs, W, H)]] = True
+    if has.all():
+        return uvs
+    uvs = uvs.copy()
+    px = np.empty(uvs.shape, dtype=np.float64)
+    px[..., 0] = uvs[..., 0].astype(np.float64) * W - 0.5
+    px[..., 1] = (1.0 - uvs[..., 1].astype(np.float64)) * H - 0.5
+    e1, e2 = px[:, 1] - px[:, 0], px[:, 2] - px[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    for chart in np.nonzero(~has)[0]:
+        members = np.nonzero(charts == chart)[0]
+        t = members[np.argmax(area[members])]
+        centroid = px[t].mean(axis=0)
+        target = np.clip(np.round(centroid), 0, [W - 1, H - 1])
+        dx, dy = target - centroid
+        uvs[members, :, 0] = np.clip(uvs[members, :, 0].astype(np.float64) + dx / W, 0, 1)
+        uvs[members, :, 1] = np.clip(uvs[members, :, 1].astype(np.float64) - dy / H, 0, 1)
+    return uvs
+
+
+def _pack(vertices, faces, settings: ParameterizeSettings,
+          texels_per_unit: float) -> Parameterization | None:
+    """Pack at the given density; None when the charts do not fit one W x H atlas."""
+    import xatlas
+
+    W, H = settings.atlas_width, settings.atlas_height
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(np.ascontiguousarray(vertices, dtype=np.float32),
+                   np.ascontiguousarray(faces, dtype=np.uint32))
+    co = xatlas.ChartOptions()
+    co.max_cost = float(settings.max_chart_cost)
+    co.normal_deviation_weight = float(settings.normal_deviation_weight)
+    po = xatlas.PackOptions()
+    po.resolution = W if W == H else 0
+    po.texels_per_unit = float(texels_per_unit)
+    po.padding = int(settings.padding)
+    po.bilinear = True
+    po.bruteForce = False
+    po.rotate_charts = True
+    atlas.generate(co, po)
+    w, h = int(atlas.width), int(atlas.height)
+    if atlas.atlas_count != 1 or w > W or h > H:
+        return None
+    vmap, idx, uv = atlas.get_mesh(0)
+    idx = np.asarray(idx, dtype=np.int64).reshape(-1, 3)
+    vmap = np.asarray(vmap, dtype=np.int64)
+    if idx.shape != faces.shape or not np.array_equal(vmap[idx], faces):
+        raise BakeFailedError("xatlas changed the face order of the coarse mesh")
+    # xatlas's normalised uv times its size is the position in texels from the top-left
+    # corner of its atlas; place that at the top-left of the W x H atlas.
+    px = np.asarray(uv, dtype=np.float64)[idx] * np.array([w, h], dtype=np.float64)
+    u = px[..., 0] / W
+    v = 1.0 - px[..., 1] / H
+    uvs = np.stack([u, v], axis=-1).astype(np.float32)
+    uvs = np.clip(uvs, 0.0, 1.0)
+    return Parameterization(uvs=uvs, width=W, height=H, packed_width=w, packed_height=h,
+                            charts=int(atlas.chart_count), texels_per_unit=float(texels_per_unit),
+                            utilization=float(atlas.utilization[0]) if hasattr(atlas.utilization, "__len__") else float(atlas.utilization))
+
+
+def chart_labels(faces: np.ndarray, uvs: np.ndarray) -> np.ndarray:
+    """Chart id per face: faces sharing an edge with equal UVs on both ends belong to
+    the same chart (connected components of the UV-continuous face adjacency)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    m = len(faces)
+    e_v = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)   # (3M, 2)
+    e_uv = np.stack([uvs, np.roll(uvs, -1, axis=1)], axis=2).reshape(-1, 2, 2)
+    face_of = np.repeat(np.arange(m), 3)
+    # Canonical key: (min vertex, max vertex, uv at min, uv at max)
+    swap = e_v[:, 0] > e_v[:, 1]
+    a = np.where(swap, e_v[:, 1], e_v[:, 0])
+    b = np.where(swap, e_v[:, 0], e_v[:, 1])
+    ua = np.where(swap[:, None], e_uv[:, 1], e_uv[:, 0])
+    ub = np.where(swap[:, None], e_uv[:, 0], e_uv[:, 1])
+    key = np.column_stack([a, b, ua.view(np.int32).reshape(-1, 2), ub.view(np.int32).reshape(-1, 2)])
+    order = np.lexsort(key.T[::-1])
+    sk = key[order]
+    same = (sk[1:] == sk[:-1]).all(axis=1)
+    i = face_of[order[:-1][same]]
+    j = face_of[order[1:][same]]
+    g = coo_matrix((np.ones(len(i), dtype=np.int8), (i, j)), shape=(m, m))
+    _, labels = connected_components(g, directed=False)
+    return labels.astype(np.int64)

@@ -1,0 +1,390 @@
+// `hrt bench --a A.hbundle --b B.hbundle --pose-a ... [--pose-b ...]
+//  [--settle DX DY DZ --settle-depth D] [--path DX DY DZ] [--frames F]
+//  [--resolutions 32,50,64,128] [--copies 1,2,4,...,16] [--json]`
+//
+// Times haptic frames (Sec. 3.3: collision, clustering, texture force) of a
+// probe A moving against B, the way the paper measured a file scraping a CAD
+// part (Sec. 6.4, Fig. 9): A travels back and forth along a path (one new pose
+// per frame, `--frames` poses from --pose-a to --pose-a + --path), the first
+// pass is a warm-up, the medians are over the following `--passes` - 1
+// passes. Reported per grid resolution N:
+//   - the scraping path itself (real contacts: pairs and patches as they come),
+//     with the per-pair collision and per-patch force costs;
+//   - the same frames binned by their number of patches;
+//   - scenes with K copies of B spread along the path (each copy sees A at a
+//     different point of the path), so the patch count grows with K while every
+//     patch stays a real one.
+// --settle first moves A from --pose-a along a direction until its deepest
+// patch penetrates by --settle-depth (bisection), so a script does not need to
+// know the exact contact height of two baked bundles.
+// One thread; the machine is printed with the table.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "commands.h"
+#include "hrt/scene.h"
+#include "scene_cli.h"
+
+namespace hrt_cli {
+namespace {
+
+struct BenchOptions {
+  std::string a, b;
+  std::vector<double> pose_a;
+  std::vector<double> pose_b{0, 0, 0, 0, 0, 0, 1};
+  std::vector<double> settle;            // direction (3) or empty
+  double settle_depth = 5e-5;            // m
+  std::vector<double> path{0, 0, 0};     // total translation of A along the sweep, m
+  int frames = 500;                      // poses along the path (one frame each)
+  int passes = 3;                        // back-and-forth passes; the first is a warm-up
+  std::vector<int> resolutions{32, 50, 64, 128};
+  std::vector<int> copies{1, 2, 4, 7, 8, 12, 16};
+  SceneFlags scene;
+  bool json = false;
+};
+
+double median(std::vector<double> v) {
+  if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+std::string machine_name() {
+  std::ifstream in("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("model name", 0) == 0) {
+      auto p = line.find(':');
+      if (p != std::string::npos) return line.substr(p + 2);
+    }
+  }
+  return "unknown CPU";
+}
+
+hrt::Pose translated(const hrt::Pose& p, const hrt::Vec3& d) {
+  hrt::Pose q = p;
+  q.position += d;
+  return q;
+}
+
+// Deepest covered patch of one fresh frame (-inf when there is none).
+double deepest(const hrt::Scene& scene, const std::vector<hrt::Pose>& poses) {
+  hrt::State st(scene);
+  st.poses = poses;
+  hrt::frame(scene, st);
+  double d = -std::numeric_limits<double>::infinity();
+  for (int k = 0; k < st.num_patches; ++k)
+    if (st.patches[static_cast<size_t>(k)].covered) d = std::max(d, st.patches[static_cast<size_t>(k)].delta);
+  return d;
+}
+
+// Moves A from `start` along `dir` until its deepest patch reaches `depth`.
+hrt::Pose settle(const hrt::Scene& scene, const hrt::Pose& start, const hrt::Pose& pose_b, hrt::Vec3 dir,
+                 double depth) {
+  dir.normalize();
+  auto f = [&](double s) { return deepest(scene, {translated(start, s * dir), pose_b}); };
+  if (f(0.0) >= depth)
+    throw Exit(kUsage, "--settle: A already penetrates deeper than --settle-depth at --pose-a; start it farther out");
+  const double travel = scene.model(0).quality.bbox_diagonal + scene.model(1).quality.bbox_diagonal +
+                        (start.position - pose_b.position).norm();
+  const double h = std::max(0.25 * scene.tolerance(1), 1e-6);
+  double lo = 0.0, hi = -1.0;
+  for (double s = h; s <= travel; s += h) {
+    if (f(s) >= depth) {
+      hi = s;
+      break;
+    }
+    lo = s;
+  }
+  if (hi < 0) throw Exit(kUsage, "--settle: A never reached B along the --settle direction");
+  for (int it = 0; it < 60 && hi - lo > 1e-12; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (f(mid) >= depth ? hi : lo) = mid;
+  }
+  return translated(start, hi * dir);
+}
+
+struct FrameRecord {
+  double collision, clustering, force, total;
+  int pairs, patches;
+};
+
+// Runs the sweep: `passes` back-and-forth passes of `frames` poses; records
+// every frame after the first pass.
+std::vector<FrameRecord> sweep(const hrt::Scene& scene, const std::vector<hrt::Pose>& base, const hrt::Vec3& path,
+                               int frames, int passes, hrt::Warnings* warnings) {
+  hrt::State st(scene);
+  st.poses = base;
+  std::vector<FrameRecord> out;
+  out.reserve(static_cast<size_t>(frames) * static_cast<size_t>(std::max(passes - 1, 1)));
+  for (int pass = 0; pass < passes; ++pass) {
+    for (int f = 0; f < frames; ++f) {
+      const double t = frames > 1 ? static_cast<double>(f) / (frames - 1) : 0.0;
+      const double s = (pass % 2 == 0) ? t : 1.0 - t;  // back and forth: consecutive poses stay close
+      st.poses[0] = translated(base[0], s * path);
+      hrt::frame(scene, st);
+      if (pass == 0 && passes > 1) continue;
+      out.push_back({st.timings.collision_us, st.timings.clustering_us, st.timings.force_us, st.timings.total_us,
+                     st.num_pairs, st.num_patches});
+    }
+  }
+  if (warnings) *warnings = st.warnings;
+  return out;
+}
+
+struct Summary {
+  double collision, clustering, force, total, per_pair, per_patch;
+  double pairs_med, patches_med;
+  int pairs_min, pairs_max, patches_min, patches_max;
+  size_t frames;
+};
+
+Summary summarize(const std::vector<FrameRecord>& r) {
+  std::vector<double> c, k, f, t, pp, pf, np, nk;
+  Summary s{};
+  s.pairs_min = s.patches_min = std::numeric_limits<int>::max();
+  s.pairs_max = s.patches_max = 0;
+  for (const FrameRecord& x : r) {
+    c.push_back(x.collision);
+    k.push_back(x.clustering);
+    f.push_back(x.force);
+    t.push_back(x.total);
+    if (x.pairs > 0) pp.push_back(x.collision / x.pairs);
+    if (x.patches > 0) pf.push_back(x.force / x.patches);
+    np.push_back(x.pairs);
+    nk.push_back(x.patches);
+    s.pairs_min = std::min(s.pairs_min, x.pairs);
+    s.pairs_max = std::max(s.pairs_max, x.pairs);
+    s.patches_min = std::min(s.patches_min, x.patches);
+    s.patches_max = std::max(s.patches_max, x.patches);
+  }
+  s.collision = median(c);
+  s.clustering = median(k);
+  s.force = median(f);
+  s.total = median(t);
+  s.per_pair = median(pp);
+  s.per_patch = median(pf);
+  s.pairs_med = median(np);
+  s.patches_med = median(nk);
+  s.frames = r.size();
+  return s;
+}
+
+nlohmann::json summary_json(const Summary& s) {
+  return {{"frames", s.frames},
+          {"collision_us", s.collision},
+          {"clustering_us", s.clustering},
+          {"force_us", s.force},
+          {"total_us", s.total},
+          {"collision_per_pair_us", s.per_pair},
+          {"force_per_patch_us", s.per_patch},
+          {"pairs", {{"min", s.pairs_min}, {"median", s.pairs_med}, {"max", s.pairs_max}}},
+          {"patches", {{"min", s.patches_min}, {"median", s.patches_med}, {"max", s.patches_max}}}};
+}
+
+std::string pose_args(const hrt::Pose& p) {
+  char buf[256];
+  const Eigen::Quaterniond& q = p.rotation;
+  std::snprintf(buf, sizeof buf, "%.9g %.9g %.9g %.9g %.9g %.9g %.9g", p.position.x(), p.position.y(), p.position.z(),
+                q.x(), q.y(), q.z(), q.w());
+  return buf;
+}
+
+void run_bench(const BenchOptions& o) {
+  if (o.a.empty() || o.b.empty())
+    throw Exit(kUsage,
+               "bench needs --a and --b bundles in contact (examples/bench_runtime.sh bakes a rasp and a CAD part "
+               "and runs it)");
+  if (o.pose_a.empty()) throw Exit(kUsage, "bench needs --pose-a x y z qx qy qz qw");
+  for (int n : o.resolutions)
+    if (n < 8 || n > 4096) throw Exit(kUsage, "--resolutions: each N must be between 8 and 4096");
+  for (int k : o.copies)
+    if (k < 1 || k > 256) throw Exit(kUsage, "--copies: each count must be between 1 and 256");
+  if (o.frames < 1 || o.passes < 1) throw Exit(kUsage, "--frames and --passes must be at least 1");
+  if (!o.settle.empty() && o.settle.size() != 3) throw Exit(kUsage, "--settle: expected 3 numbers");
+  if (o.path.size() != 3) throw Exit(kUsage, "--path: expected 3 numbers");
+  hrt::Pose pose_a = parse_pose(o.pose_a, "--pose-a");
+  const hrt::Pose pose_b = parse_pose(o.pose_b, "--pose-b");
+  const hrt::Vec3 path(o.path[0], o.path[1], o.path[2]);
+
+  const auto models = load_models({o.a, o.b}, o.scene.verify_hashes);
+  const hrt::Model& A = *models[0];
+  const hrt::Model& B = *models[1];
+  hrt::SceneOptions so = o.scene.scene_options();
+
+  if (!o.settle.empty()) {
+    const hrt::Vec3 dir(o.settle[0], o.settle[1], o.settle[2]);
+    if (!(dir.norm() > 0)) throw Exit(kUsage, "--settle: the direction must not be zero");
+    so.force.resolution = hrt::kDefaultResolution;
+    const auto scene = make_scene({&A, &B}, so);
+    pose_a = settle(*scene, pose_a, pose_b, dir, o.settle_depth);
+  }
+
+  nlohmann::json js;
+  const std::string machine = machine_name();
+  const unsigned cores = std::thread::hardware_concurrency();
+  js["machine"] = {{"cpu", machine}, {"cores", cores}, {"threads_used", 1}, {"compiler", __VERSION__}};
+  js["a"] = {{"bundle", A.path}, {"pieces", A.pieces.size()}, {"triangles", A.faces.size()}};
+  js["b"] = {{"bundle", B.path}, {"pieces", B.pieces.size()}, {"triangles", B.faces.size()}};
+  js["pose_a"] = pose_args(pose_a);
+  js["pose_b"] = pose_args(pose_b);
+  js["path"] = {path.x(), path.y(), path.z()};
+  js["frames_per_pass"] = o.frames;
+  js["passes"] = o.passes;
+
+  if (!o.json) {
+    std::printf("hrt bench: A = %s (%zu pieces, %zu triangles), B = %s (%zu pieces, %zu triangles)\n", A.path.c_str(),
+                A.pieces.size(), A.faces.size(), B.path.c_str(), B.pieces.size(), B.faces.size());
+    std::printf("machine    %s, %u logical cores, one thread used; %s\n", machine.c_str(), cores, "compiler " __VERSION__);
+    std::printf("pose A     --pose-a %s   (B: --pose-b %s)\n", pose_args(pose_a).c_str(), pose_args(pose_b).c_str());
+    std::printf("path       A moves by (%.4g, %.4g, %.4g) m over %d frames, back and forth, %d passes (first = warm-up)\n\n",
+                path.x(), path.y(), path.z(), o.frames, o.passes);
+  }
+
+  // 1. The scraping path, per N.
+  std::map<int, std::vector<FrameRecord>> records;
+  nlohmann::json jpath = nlohmann::json::array();
+  if (!o.json) {
+    std::printf("Scraping path: median per frame (us)\n");
+    std::printf("%5s %7s %9s %11s %9s %9s %10s %11s %8s %8s\n", "N", "pairs", "patches", "collision", "cluster",
+                "force", "total", "coll/pair", "force/pt", "rate kHz");
+  }
+  for (int n : o.resolutions) {
+    so.force.resolution = n;
+    const auto scene = make_scene({&A, &B}, so);
+    hrt::Warnings w;
+    records[n] = sweep(*scene, {pose_a, pose_b}, path, o.frames, o.passes, &w);
+    const Summary s = summarize(records[n]);
+    nlohmann::json j = summary_json(s);
+    j["resolution"] = n;
+    j["tolerance"] = scene->tolerance(1);
+    j["warnings"] = {{"undersampled_patches", w.depth.undersampled_patches},
+                     {"uncovered_configurations", w.depth.uncovered_configurations},
+                     {"patches_dropped", w.patches_dropped},
+                     {"fcl_failures", w.fcl_failures},
+                     {"fallback_normals", w.fallback_normals}};
+    jpath.push_back(j);
+    if (!o.json) {
+      char pairs[32], patches[32];
+      std::snprintf(pairs, sizeof pairs, "%.0f", s.pairs_med);
+      std::snprintf(patches, sizeof patches, "%d-%d", s.patches_min, s.patches_max);
+      std::printf("%5d %7s %9s %11.1f %9.1f %9.1f %10.1f %11.2f %8.1f %8.2f\n", n, pairs, patches, s.collision,
+                  s.clustering, s.force, s.total, s.per_pair, s.per_patch, 1e3 / s.total);
+    }
+  }
+  js["path_results"] = jpath;
+
+  // 2. The same frames binned by patch count.
+  std::map<int, std::map<int, std::vector<double>>> bins;  // patches -> N -> totals
+  std::map<int, std::map<int, std::vector<double>>> bins_force;
+  for (const auto& [n, rec] : records)
+    for (const FrameRecord& r : rec) {
+      bins[r.patches][n].push_back(r.total);
+      bins_force[r.patches][n].push_back(r.force);
+    }
+  nlohmann::json jbins = nlohmann::json::array();
+  if (!o.json) {
+    std::printf("\nScraping path by patch count: median total (texture force) per frame, us\n%8s %7s", "patches",
+                "frames");
+    for (int n : o.resolutions) std::printf("  %18s", ("N = " + std::to_string(n)).c_str());
+    std::printf("\n");
+  }
+  for (const auto& [k, per_n] : bins) {
+    nlohmann::json jb = {{"patches", k}};
+    const size_t nframes = per_n.begin()->second.size();
+    jb["frames"] = nframes;
+    if (!o.json) std::printf("%8d %7zu", k, nframes);
+    for (int n : o.resolutions) {
+      auto it = per_n.find(n);
+      const double tot = it == per_n.end() ? NAN : median(it->second);
+      const double frc = it == per_n.end() ? NAN : median(bins_force[k][n]);
+      jb["total_us"][std::to_string(n)] = tot;
+      jb["force_us"][std::to_string(n)] = frc;
+      if (!o.json) std::printf("  %8.1f (%7.1f)", tot, frc);
+    }
+    if (!o.json) std::printf("\n");
+    jbins.push_back(jb);
+  }
+  js["by_patch_count"] = jbins;
+
+  // 3. K copies of B spread along the path.
+  nlohmann::json jcopies = nlohmann::json::array();
+  if (!o.json) {
+    std::printf("\nK copies of B along the path: median total (texture force) per frame, us\n%4s %7s %8s", "K",
+                "pairs", "patches");
+    for (int n : o.resolutions) std::printf("  %18s", ("N = " + std::to_string(n)).c_str());
+    std::printf("\n");
+  }
+  const int copy_frames = std::max(1, o.frames / 5);
+  for (int k : o.copies) {
+    std::vector<const hrt::Model*> objects{&A};
+    std::vector<hrt::Pose> base{pose_a};
+    for (int c = 0; c < k; ++c) {
+      objects.push_back(&B);
+      // Copy c sees A as if A were at the fraction c / k of the path.
+      base.push_back(translated(pose_b, -(static_cast<double>(c) / k) * path));
+    }
+    nlohmann::json jk = {{"copies", k}};
+    std::string line;
+    Summary first{};
+    bool have_first = false;
+    for (int n : o.resolutions) {
+      so.force.resolution = n;
+      const auto scene = make_scene(objects, so);
+      const Summary s = summarize(sweep(*scene, base, path / std::max(1, k), copy_frames, o.passes, nullptr));
+      if (!have_first) {
+        first = s;
+        have_first = true;
+      }
+      jk["results"][std::to_string(n)] = summary_json(s);
+      char cell[64];
+      std::snprintf(cell, sizeof cell, "  %8.1f (%7.1f)", s.total, s.force);
+      line += cell;
+    }
+    jcopies.push_back(jk);
+    if (!o.json) std::printf("%4d %7.0f %8.0f%s\n", k, first.pairs_med, first.patches_med, line.c_str());
+  }
+  js["copies"] = jcopies;
+  if (o.json) std::printf("%s\n", js.dump(2, ' ', false, nlohmann::json::error_handler_t::replace).c_str());
+}
+
+}  // namespace
+
+void register_bench(CLI::App& app) {
+  auto o = std::make_shared<BenchOptions>();
+  o->scene.max_patches = 128;  // the K-copies scenes hold many patches
+  CLI::App* cmd = app.add_subcommand("bench", "Time haptic frames (collision, clustering, texture force) of a probe "
+                                              "scraping an object, per grid resolution and patch count");
+  cmd->add_option("--a", o->a, "probe bundle A (e.g. a rasp)");
+  cmd->add_option("--b", o->b, "object bundle B (e.g. a CAD part)");
+  cmd->add_option("--pose-a", o->pose_a, "start pose of A: x y z qx qy qz qw")->expected(7);
+  cmd->add_option("--pose-b", o->pose_b, "pose of B: x y z qx qy qz qw")->expected(7)->capture_default_str();
+  cmd->add_option("--settle", o->settle, "first move A from --pose-a along this direction until it penetrates B")
+      ->expected(3);
+  cmd->add_option("--settle-depth", o->settle_depth, "deepest patch penetration to settle at, m")
+      ->capture_default_str();
+  cmd->add_option("--path", o->path, "translation of A over one pass of the sweep, m")->expected(3)->capture_default_str();
+  cmd->add_option("--frames", o->frames, "poses (one frame each) per pass along the path")->capture_default_str();
+  cmd->add_option("--passes", o->passes, "back-and-forth passes; the first is a warm-up")->capture_default_str();
+  cmd->add_option("--resolutions", o->resolutions, "grid resolutions N to time")->delimiter(',')->capture_default_str();
+  cmd->add_option("--copies", o->copies, "numbers K of copies of B for the patch-count table")
+      ->delimiter(',')
+      ->capture_default_str();
+  o->scene.add_to(cmd, false);
+  cmd->add_flag("--json", o->json, "print the results as JSON");
+  cmd->callback([o]() { run_bench(*o); });
+}
+
+}  // namespace hrt_cli

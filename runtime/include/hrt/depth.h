@@ -1,0 +1,195 @@
+// Directional penetration depth (paper Eq. 8-9) and the texture force model
+// (Eq. 3-7) on the CPU.
+//
+// For one contact patch (contact.h: n, u, v, window, tris_a, tris_b):
+//   1. The coarse triangles of A (tris_a) and of B (tris_b) are rasterized
+//      orthographically along n into the N x N grid of patch.window (texel
+//      centres as contact.h defines them). At each covered texel the per-corner
+//      UV is interpolated (affine: the projection is orthographic), the atlas
+//      is sampled bilinearly (the mapping f of Sec. 5.1; same convention as
+//      Atlas::sample), the object-space point goes to the world and its height
+//      is h = n . p (Eq. 1, 8). Per texel A keeps the largest h over its
+//      triangles (its deepest point along n), B the smallest (its first point).
+//   2. delta = max over texels covered by both of (h_A - h_B)   (Eq. 9).
+//      Sign convention (docs/bundle-format.md): n points from A into B, so
+//      delta > 0 means overlap, d delta / d n = +1, and the force on A is
+//      along -n.
+//   3. The gradient (Eq. 7) by central differences over the 11
+//      configurations of A: 0, +-du, +-dv (translations along u, v),
+//      +-dtheta_u, +-dtheta_v, +-dtheta_n (rotations about the axes u, v, n
+//      through A's centre of mass c_A). d delta / d n = 1 by definition
+//      (translating A along n adds the step to every h_A). The patch's
+//      contact data (n, u, v, window, triangles) are frozen for all 11.
+//   4. Eq. 5: (F_u F_v F_n T_u T_v T_n) = -k max(delta, 0) grad delta, i.e. the
+//      force of the energy U = k max(delta, 0)^2 / 2 (Eq. 3 clamped: a patch
+//      with delta <= 0 gives no force); Eq. 6 maps it to the world with the
+//      columns (u v n). Because the rotations are about c_A, T is the torque
+//      on A about c_A (the body torque).
+//
+// Nothing here allocates once DepthScratch is reserved for the largest
+// resolution in use, and nothing prints: warnings are counted in a
+// DepthWarnings that the caller owns.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "hrt/contact.h"
+#include "hrt/model.h"
+
+namespace hrt {
+
+// Default stiffness k of Eq. 3 (N/m): 1 N/mm, the order of what a
+// Phantom-class 6-DoF device renders stably through a virtual coupling
+// (the paper does not give its value).
+constexpr double kDefaultStiffness = 1000.0;
+// Default grid resolution N (the paper's 50 x 50 buffer, Sec. 6.1 and 6.4).
+constexpr int kDefaultResolution = 50;
+
+struct ForceOptions {
+  // N: the grid of a patch window is N x N texels (the clustering code builds
+  // windows with this N; compute_patch_wrench uses patch.window.resolution).
+  int resolution = kDefaultResolution;
+  // k of Eq. 3, N/m.
+  double stiffness = kDefaultStiffness;
+  // Translation step du = dv of Eq. 7, m. 0: one grid texel (window.cell), so
+  // that the shortcut's shifted height maps are exact.
+  double lin_step = 0;
+  // Rotation step dtheta_u = dtheta_v = dtheta_n of Eq. 7, rad. 0: the
+  // "matching angle" cell / R, R = the largest distance from c_A to the four
+  // corners of the window: no point of the window moves by more than one
+  // grid texel under any of the three rotations (see default_ang_step).
+  double ang_step = 0;
+  // The paper's Sec. 5.2 shortcut: h_A(+-du), h_A(+-dv) and h_A(+-dtheta_n)
+  // are resampled from h_A(0) (rasterized with a border of ceil(du / cell)
+  // texels) instead of rasterized again. Shifts by a whole number of texels
+  // are exact; the n-rotation uses bilinear resampling (an approximation).
+  // Only the in-plane rotations dtheta_u, dtheta_v are rendered again (the
+  // paper's text lists h_A(+-du), h_A(+-dv) there: a typo, translations do
+  // not need rendering, tilts do).
+  bool shortcut = false;
+};
+
+// Counters the caller owns (in its State); the depth code never prints.
+struct DepthWarnings {
+  // Patches whose grid texel was coarser than half the shortest relief
+  // wavelength of A or B (quality.min_wavelength, Sec. 7.2): counted once per
+  // patch lifetime (see compute_patch_wrench's warned flag).
+  uint64_t undersampled_patches = 0;
+  // Finite-difference configurations of Eq. 7 in which no texel was covered
+  // by both objects (a one-sided difference was used, or 0 when both sides
+  // were uncovered).
+  uint64_t uncovered_configurations = 0;
+};
+
+// Preallocated buffers for one patch evaluation (one per thread).
+// Heights are stored relative to n . window.origin, in metres, as double;
+// an uncovered texel of A holds -inf, of B +inf, so h_A - h_B is -inf there
+// and never NaN.
+struct DepthScratch {
+  int capacity = 0;                 // side length (texels, border included) reserved
+  std::vector<double> hb;           // B's min heights, N x N
+  std::vector<double> ha0;          // A at configuration 0, (N + 2 b)^2 with border b
+  std::vector<double> ha;           // A at one configuration (directional_depth)
+  std::vector<double> hcfg;         // A at the 10 perturbed configurations, N x N each
+
+  // Border of the shortcut's h_A(0) map reserved by reserve() (texels); a
+  // larger lin_step makes compute_patch_wrench grow the buffers once.
+  static constexpr int kReservedBorder = 4;
+  // Allocates for N x N grids (N <= resolution) with a border of
+  // kReservedBorder texels. Call once before the frame loop.
+  void reserve(int resolution);
+};
+
+// The 11 configurations of Eq. 7, in the order of DepthGradient::delta_at.
+enum class Config : int {
+  zero = 0,
+  plus_u, minus_u, plus_v, minus_v,
+  plus_theta_u, minus_theta_u, plus_theta_v, minus_theta_v, plus_theta_n, minus_theta_n,
+  count
+};
+
+// Rigid motion of A (world frame, applied after A's pose) for one
+// configuration: translation by +-lin_step along u or v, or rotation by
+// +-ang_step about u, v or n through the point c (A's centre of mass, world).
+Eigen::Isometry3d config_motion(Config c, const ContactPatch& patch, const Vec3& c_world,
+                                double lin_step, double ang_step);
+
+// Effective steps for a patch (resolving the 0 defaults of ForceOptions).
+double effective_lin_step(const ContactPatch& patch, const ForceOptions& opt);
+double default_ang_step(const ContactPatch& patch, const Vec3& c_a_world);
+double effective_ang_step(const ContactPatch& patch, const Vec3& c_a_world, const ForceOptions& opt);
+
+// True when the grid texel of `w` is coarser than half of the shortest relief
+// wavelength recorded in A or B (quality.min_wavelength > 0), Sec. 7.2.
+bool grid_undersamples(const Model& A, const Model& B, const Window& w);
+
+// Height map of one surface (Eq. 8): rasterizes `tris` of model M placed by
+// world_from_m orthographically along n into the window grid extended by
+// `border` texels on every side, i.e. texel (i, j) for -border <= i, j <
+// N + border is stored at out[(j + border) * (N + 2 border) + (i + border)].
+// keep_max: keep the largest h per texel (A), else the smallest (B). The
+// buffer is first filled with -inf (keep_max) or +inf. Heights are relative
+// to n . w.origin. Allocates nothing.
+void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m,
+                       const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
+                       const Window& w, int border, bool keep_max, double* out);
+
+// The same for `count` placements of M at once (out[k] gets placement k,
+// with border borders[k], or 0 when borders is null): triangle by triangle,
+// all placements in turn, so that each triangle's atlas region is read from
+// the cache for all placements but the first (they differ by about a texel).
+void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from_m, const int* borders, int count,
+                             const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
+                             const Window& w, bool keep_max, double* const* out);
+
+// Eq. 9 for one configuration of A: world_from_a is A's whole placement
+// (pose_a.iso(), possibly composed with a config_motion), world_from_b B's.
+// Rasterizes both triangle lists of the patch over its window (frozen n, u,
+// v, window) and returns max over texels covered by both of h_A - h_B (m).
+// When no texel is covered by both, returns -infinity and sets *covered to
+// false. Rasterizes B every call: for tests and tools; the force loop uses
+// compute_patch_wrench.
+double directional_depth(const Model& A, const Eigen::Isometry3d& world_from_a, const Model& B,
+                         const Eigen::Isometry3d& world_from_b, const ContactPatch& patch,
+                         DepthScratch& scratch, bool* covered = nullptr);
+
+// delta and gradient of one patch, without forces (the force model below
+// is Eq. 5 applied to these). delta_at[c] holds delta at configuration c
+// (-inf where uncovered).
+struct DepthGradient {
+  double delta = 0;
+  Vec6 grad = Vec6::Zero();  // d delta / d(u, v, n, theta_u, theta_v, theta_n); [2] == 1
+  bool covered = false;
+  double lin_step = 0, ang_step = 0;  // the steps used
+  double delta_at[static_cast<int>(Config::count)] = {};
+  int uncovered_configurations = 0;
+};
+DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
+                                     const ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch);
+
+// The whole force model for one patch: fills patch.delta, grad, covered,
+// force and torque (on A, world; torque about A's centre of mass
+// A.mass.center_of_mass placed by pose_a). An uncovered patch gets delta = 0,
+// grad = (0, 0, 1, 0, 0, 0), covered = false and no wrench.
+// `warnings` (optional) counts the Sec. 7.2 undersampling once per patch
+// lifetime: the caller keeps one bool per tracked patch and passes it as
+// `warned` (set to true the first time it is counted); with warned ==
+// nullptr every call that undersamples counts.
+void compute_patch_wrench(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
+                          ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch,
+                          DepthWarnings* warnings = nullptr, bool* warned = nullptr);
+
+// Eq. 5-6 alone: force and torque on A (world) from delta and its gradient.
+void wrench_from_gradient(const ContactPatch& patch, double delta, const Vec6& grad, double stiffness,
+                          Vec3& force, Vec3& torque);
+
+// The opposite wrench on B about B's centre of mass c_b, given A's (force F,
+// torque T_a about c_a): (-F, -T_a - (c_a - c_b) x F).
+void wrench_on_b(const Vec3& force_a, const Vec3& torque_a, const Vec3& c_a, const Vec3& c_b, Vec3& force_b,
+                 Vec3& torque_b);
+
+}  // namespace hrt

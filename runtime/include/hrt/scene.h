@@ -1,0 +1,230 @@
+// A scene of haptic bundles and the per-frame driver (paper Sec. 3.3).
+//
+// Scene: the immutable part. A static list of models, object 0 being the
+// probe A (the object the user moves), 1..n-1 the objects B it touches, plus
+// the options. Building a Scene builds the collision geometry once: one
+// fcl::Convexd per convex piece of every model, an FCL dynamic AABB tree of
+// each B's pieces in B's own frame, and each model's piece adjacency.
+//
+// State: everything that changes from frame to frame, preallocated when it is
+// made from a Scene so that frame() allocates nothing of its own (see the
+// note on FCL below): poses, the piece pairs found by collision detection,
+// the contact patches, the net wrench on A and the opposite wrenches on every
+// B, per-stage timings and warning counters.
+//
+// One frame (Sec. 3.3, steps 1-3), frame(scene, state):
+//   1. collision: FCL distance queries between the pieces of A and the pieces
+//      of every B that are closer than the pair's tolerance (overlap included):
+//      per piece pair the closest points (or the penetration points) and a
+//      normal from A into B (Sec. 6.1: "interpenetration is considered to
+//      occur when objects are closer than a distance tolerance").
+//   2. clustering: piece pairs -> contact patches (p_A, p_B, n, a continuous
+//      tangent basis u, v, the sampling window, the coarse triangles of A and
+//      B to rasterize).
+//   3. texture force: compute_patch_wrench (depth.h, Eq. 5-9) per patch, then
+//      the sums: F, T on A; (-F, -T_A - (c_A - c_B) x F) on each B.
+//
+// Conventions: docs/bundle-format.md (meters, quaternions x y z w, n from A
+// into B, delta > 0 = overlap, torques on A about A's centre of mass).
+//
+// Allocation note: FCL 0.7 allocates inside its narrow phase (Convex::
+// findExtremeVertex builds a std::vector per support call, and the libccd
+// adapter news its shape wrappers); everything of ours is preallocated.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "hrt/contact.h"
+#include "hrt/depth.h"
+#include "hrt/model.h"
+
+namespace hrt {
+
+// ---------------------------------------------------------------------------
+// Options (every default documented here; this header is the one place).
+// ---------------------------------------------------------------------------
+
+struct CollisionOptions {
+  // Extra distance (m) added to each pair's contact tolerance
+  //   tol(A, B) = A.displacement_outward + A.hull_deviation
+  //             + B.displacement_outward + B.hull_deviation + margin
+  // (docs/bundle-format.md). Negative = automatic: auto_margin_fraction times
+  // the smaller of the two bundles' bbox diagonals (1 mm for a 1 m part).
+  double margin = -1.0;
+  double auto_margin_fraction = 1e-3;
+};
+
+struct ClusterOptions {
+  // Two piece pairs of the same B join one patch only when their normals are
+  // within this angle (degrees): a patch is one height field along one n, so
+  // contacts on faces meeting at a sharp edge stay separate patches.
+  double max_normal_angle_deg = 45.0;
+  // Most patches per frame (capacity of State::patches). Beyond it the
+  // patches with the smallest weight are dropped and counted in
+  // Warnings::patches_dropped.
+  int max_patches = 32;
+  // A patch of the previous frame and one of this frame are the same contact
+  // (for the continuity of u and of the lattice, and for once-per-lifetime
+  // warnings) when they touch the same B, their normals are within
+  // max_normal_angle_deg, and their contact points on B are closer than
+  // track_radius_factor times the previous window's side.
+  double track_radius_factor = 0.5;
+};
+
+struct SceneOptions {
+  CollisionOptions collision;
+  ClusterOptions cluster;
+  // Texture force model (depth.h): resolution N (default 50, the paper's
+  // 50 x 50 buffer), stiffness k (default kDefaultStiffness = 1000 N/m),
+  // finite-difference steps (default one grid texel and the matching angle),
+  // the Sec. 5.2 shortcut (default off).
+  ForceOptions force;
+};
+
+// ---------------------------------------------------------------------------
+// Scene (immutable)
+// ---------------------------------------------------------------------------
+
+namespace collision {
+class World;  // FCL geometry of the scene (src/collision/collision.h)
+}
+
+class Scene {
+ public:
+  // objects[0] is the probe A; at least two objects; no null pointer. The
+  // models must outlive the Scene (it keeps the pointers). Throws
+  // std::invalid_argument on a bad list or bad options.
+  explicit Scene(std::vector<const Model*> objects, const SceneOptions& options = {});
+  ~Scene();
+  Scene(const Scene&) = delete;
+  Scene& operator=(const Scene&) = delete;
+
+  int size() const { return static_cast<int>(objects_.size()); }
+  const Model& model(int i) const { return *objects_[static_cast<size_t>(i)]; }
+  const SceneOptions& options() const { return options_; }
+  // Contact tolerance (m) between A and object b (b >= 1), see CollisionOptions.
+  double tolerance(int b) const { return tolerance_[static_cast<size_t>(b)]; }
+  const collision::World& world() const { return *world_; }
+
+ private:
+  std::vector<const Model*> objects_;
+  SceneOptions options_;
+  std::vector<double> tolerance_;
+  std::unique_ptr<collision::World> world_;
+};
+
+// ---------------------------------------------------------------------------
+// State (preallocated, reused every frame)
+// ---------------------------------------------------------------------------
+
+// One pair of convex pieces (A's piece_a, B's piece_b) closer than the
+// tolerance, as collision detection reports it.
+struct PiecePair {
+  int object_b = -1;
+  int piece_a = -1;
+  int piece_b = -1;
+  double distance = 0.0;   // signed, m; < 0: the coarse pieces overlap by -distance
+  double tolerance = 0.0;  // the pair's tolerance, m
+  Vec3 p_a = Vec3::Zero();  // world: closest point on A's piece (deepest point when overlapping)
+  Vec3 p_b = Vec3::Zero();  // world: closest point on B's piece
+  Vec3 n = Vec3::UnitZ();   // unit, world, from A into B
+  bool fallback_normal = false;  // points (nearly) coincided: n from B's face planes
+};
+
+// Identity of a patch across frames. After clustering, each new patch is
+// matched greedily (closest first) to a patch of the previous frame on the
+// same B whose normal is within max_normal_angle_deg and whose contact point
+// on B is within track_radius_factor x its window side; a match keeps the id,
+// the tangent u (projected onto the new plane), the texel size (hysteresis)
+// and the once-per-lifetime warning flag; an unmatched patch gets a new id.
+// Stored in B's object frame so that it follows B when B moves. After
+// cluster_pairs, State::tracks[k] is the track of State::patches[k].
+struct PatchTrack {
+  uint64_t id = 0;
+  int object_b = -1;
+  Vec3 p_b_local = Vec3::Zero();
+  Vec3 n_local = Vec3::UnitZ();
+  Vec3 u_local = Vec3::UnitX();
+  double cell = 0.0;
+  double side = 0.0;  // window side N * cell, m
+  bool warned = false;  // undersampling warning counted for this patch's lifetime
+};
+
+// Wall-clock time of the last frame's stages, microseconds (steady_clock).
+struct StageTimings {
+  double collision_us = 0.0;
+  double clustering_us = 0.0;
+  double force_us = 0.0;
+  double total_us = 0.0;
+};
+
+// Counters, accumulated over frames (never printed by frame()).
+struct Warnings {
+  uint64_t fallback_normals = 0;    // piece pairs whose closest points coincided
+  uint64_t fcl_failures = 0;        // FCL threw on a pair (the pair was skipped)
+  uint64_t pairs_grown = 0;         // the pair buffer had to grow (an allocation)
+  uint64_t patches_dropped = 0;     // patches beyond ClusterOptions::max_patches
+  uint64_t empty_windows = 0;       // A's and B's triangles did not overlap in (u, v)
+  DepthWarnings depth;              // undersampled patches, uncovered FD configurations
+};
+
+struct State {
+  // Preallocates everything for `scene`; poses start at identity.
+  explicit State(const Scene& scene);
+
+  std::vector<Pose> poses;        // one per object, [0] = A (set these before frame())
+  std::vector<Vec6> velocities;   // placeholder for a simulation (twist per object); frame() ignores it
+
+  std::vector<PiecePair> pairs;   // capacity; the first num_pairs are this frame's
+  int num_pairs = 0;
+  std::vector<ContactPatch> patches;  // capacity max_patches; the first num_patches are valid
+  int num_patches = 0;
+  std::vector<uint64_t> patch_ids;    // patch_ids[k]: tracking id of patches[k]
+  std::vector<int> patch_first_pair;  // internal: pairs of patch k, grouped (see pair_order)
+  std::vector<int> patch_pair_count;
+  std::vector<int> pair_order;        // pair indices grouped by patch
+
+  Vec3 force = Vec3::Zero();   // net force on A, world, N
+  Vec3 torque = Vec3::Zero();  // net torque on A about its centre of mass, world, N m
+  // Per object b >= 1: the opposite wrench (force, torque about B's centre of
+  // mass), world: (-F, -T_A - (c_A - c_B) x F) summed over its patches. [0] is zero.
+  std::vector<Vec6> wrench_b;
+
+  StageTimings timings;
+  Warnings warnings;
+  uint64_t frame_count = 0;
+
+  // Scratch (internal, reused): previous frame's tracks, union-find, marks.
+  std::vector<PatchTrack> tracks, next_tracks;
+  int num_tracks = 0;
+  uint64_t next_track_id = 1;
+  std::vector<int> uf_parent;      // per pair (capacity of `pairs`)
+  std::vector<double> pair_weight;  // per pair
+  std::vector<int> pair_cluster;    // per pair: cluster id
+  std::vector<double> cluster_weight;
+  std::vector<int> cluster_patch;   // cluster -> patch index, -1 when dropped
+  std::vector<int> cluster_order;
+  std::vector<int> candidates;
+  std::vector<uint32_t> face_mark_a, face_mark_b;  // per coarse face: stamp of the last patch that took it
+  uint32_t face_stamp = 0;
+  std::vector<uint32_t> piece_mark_a, piece_mark_b;
+  std::vector<int> piece_list_a, piece_list_b;     // unique pieces of one patch
+  std::vector<uint32_t> vertex_stamp_a, vertex_stamp_b;  // per coarse vertex: stamp of its cached projection
+  std::vector<double> vertex_proj_a, vertex_proj_b;      // 3 per coarse vertex: (u, v) and height of one patch
+  std::vector<double> tri_box_a, tri_box_b;              // 4 per triangle of one patch: its (u, v) box
+  std::vector<char> track_taken;                   // per previous track, during matching
+  DepthScratch depth;
+  void resize_pair_scratch(size_t n);  // the per-pair scratch above, for n pairs
+};
+
+// One haptic frame: collision -> clustering -> per-patch wrench -> sums.
+// Reads state.poses, writes everything else in `state`.
+void frame(const Scene& scene, State& state);
+
+// The first two stages alone (frame() calls them; exposed for tests and tools).
+void detect_pairs(const Scene& scene, State& state);
+void cluster_pairs(const Scene& scene, State& state);
+
+}  // namespace hrt

@@ -1,0 +1,468 @@
+// Coarse collision detection on the convex pieces (paper Sec. 6.1): geometry
+// built once per Scene, and the per-frame pair query (detect_pairs).
+#include "collision/collision.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+namespace hrt::collision {
+
+namespace {
+
+Bounds bounds_of(const std::vector<Vec3>& pts) {
+  Bounds b;
+  if (pts.empty()) return b;
+  Vec3 lo = pts[0], hi = pts[0];
+  for (const Vec3& p : pts) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  b.center = 0.5 * (lo + hi);
+  b.half = 0.5 * (hi - lo);
+  double r2 = 0.0;
+  for (const Vec3& p : pts) r2 = std::max(r2, (p - b.center).squaredNorm());
+  b.radius = std::sqrt(r2);
+  return b;
+}
+
+}  // namespace
+
+bool ModelGeometry::adjacent(int p, int q) const {
+  if (p == q) return true;
+  auto first = adj_list.begin() + adj_offset[static_cast<size_t>(p)];
+  auto last = adj_list.begin() + adj_offset[static_cast<size_t>(p) + 1];
+  return std::binary_search(first, last, q);
+}
+
+std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree) {
+  auto g = std::make_unique<ModelGeometry>();
+  g->model = &model;
+  const size_t np = model.pieces.size();
+  if (np == 0) throw std::invalid_argument(model.path + ": the model has no convex pieces");
+  std::vector<Vec3> all;
+  g->convex.reserve(np);
+  g->piece_bounds.reserve(np);
+  g->planes.resize(np);
+  for (size_t p = 0; p < np; ++p) {
+    const ConvexPiece& piece = model.pieces[p];
+    auto verts = std::make_shared<std::vector<Vec3>>(piece.vertices.begin(), piece.vertices.end());
+    auto faces = std::make_shared<std::vector<int>>();
+    faces->reserve(piece.faces.size() * 4);
+    for (const Tri& f : piece.faces) {
+      faces->push_back(3);
+      for (int c = 0; c < 3; ++c) faces->push_back(static_cast<int>(f[static_cast<size_t>(c)]));
+      // Outward face plane n . x = d, for the fallback normal.
+      const Vec3& a = piece.vertices[f[0]];
+      Vec3 nrm = (piece.vertices[f[1]] - a).cross(piece.vertices[f[2]] - a);
+      double len = nrm.norm();
+      if (len > 0) {
+        nrm /= len;
+        g->planes[p].push_back(Eigen::Vector4d(nrm.x(), nrm.y(), nrm.z(), nrm.dot(a)));
+      }
+    }
+    g->convex.push_back(std::make_shared<fcl::Convexd>(
+        std::shared_ptr<const std::vector<Vec3>>(verts), static_cast<int>(piece.faces.size()),
+        std::shared_ptr<const std::vector<int>>(faces), false));
+    g->piece_bounds.push_back(bounds_of(piece.vertices));
+    all.insert(all.end(), piece.vertices.begin(), piece.vertices.end());
+  }
+  g->bounds = bounds_of(all);
+  g->face_spheres.reserve(model.faces.size());
+  for (const Tri& f : model.faces) {
+    const Vec3 c = (model.vertices[f[0]] + model.vertices[f[1]] + model.vertices[f[2]]) / 3.0;
+    double r = 0.0;
+    for (uint32_t vi : f) r = std::max(r, (model.vertices[vi] - c).norm());
+    g->face_spheres.emplace_back(c.x(), c.y(), c.z(), r);
+  }
+  // Face buckets and chunks per piece (see ModelGeometry).
+  g->piece_first_bucket.assign(np + 1, 0);
+  for (size_t p = 0; p < np; ++p) {
+    std::vector<uint32_t> by_axis[6];
+    for (uint32_t f : model.pieces[p].coarse_faces) {
+      const Vec3& nf = model.face_normals[f];
+      int axis = 0;
+      nf.cwiseAbs().maxCoeff(&axis);
+      by_axis[2 * axis + (nf[axis] < 0 ? 1 : 0)].push_back(f);
+    }
+    for (auto& list : by_axis) {
+      if (list.empty()) continue;
+      ModelGeometry::FaceBucket bucket;
+      Vec3 mean = Vec3::Zero();
+      for (uint32_t f : list) mean += model.face_normals[f];
+      bucket.axis = mean.norm() > 0 ? Vec3(mean.normalized()) : model.face_normals[list[0]];
+      double min_cos = 1.0;
+      for (uint32_t f : list) min_cos = std::min(min_cos, model.face_normals[f].dot(bucket.axis));
+      bucket.half_angle = std::acos(std::clamp(min_cos, -1.0, 1.0)) + 1e-9;
+      // Spatially coherent chunks: sort by the centroid along the bucket's
+      // longest extent, then cut into runs of kChunkFaces.
+      Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+      for (uint32_t f : list) {
+        lo = lo.cwiseMin(g->face_spheres[f].head<3>());
+        hi = hi.cwiseMax(g->face_spheres[f].head<3>());
+      }
+      int ax = 0;
+      (hi - lo).maxCoeff(&ax);
+      std::stable_sort(list.begin(), list.end(), [&](uint32_t x, uint32_t y) {
+        return g->face_spheres[x][ax] < g->face_spheres[y][ax];
+      });
+      bucket.first_chunk = static_cast<int>(g->chunks.size());
+      for (size_t k = 0; k < list.size(); k += ModelGeometry::kChunkFaces) {
+        ModelGeometry::FaceChunk ch;
+        ch.first = static_cast<int>(g->face_order.size());
+        ch.count = static_cast<int>(std::min<size_t>(ModelGeometry::kChunkFaces, list.size() - k));
+        ch.lo = Vec3::Constant(std::numeric_limits<double>::infinity());
+        ch.hi = -ch.lo;
+        for (int j = 0; j < ch.count; ++j) {
+          const uint32_t f = list[k + static_cast<size_t>(j)];
+          const Eigen::Vector4d& sph = g->face_spheres[f];
+          ch.lo = ch.lo.cwiseMin(sph.head<3>() - Vec3::Constant(sph[3]));
+          ch.hi = ch.hi.cwiseMax(sph.head<3>() + Vec3::Constant(sph[3]));
+          g->face_order.push_back(f);
+        }
+        g->chunks.push_back(ch);
+      }
+      bucket.num_chunks = static_cast<int>(g->chunks.size()) - bucket.first_chunk;
+      g->buckets.push_back(bucket);
+    }
+    g->piece_first_bucket[p + 1] = static_cast<int>(g->buckets.size());
+  }
+  g->scale = 2.0 * g->bounds.half.norm();
+  g->adjacency_tolerance = 1e-3 * g->scale;
+
+  // Adjacency: pieces whose hulls are within adjacency_tolerance (CoACD's
+  // pieces of one part meet along their cut planes at distance ~0).
+  std::vector<std::vector<int>> adj(np);
+  fcl::DistanceRequestd req(true, true);
+  req.distance_tolerance = 1e-9 * g->scale;
+  for (size_t p = 0; p < np; ++p) {
+    for (size_t q = p + 1; q < np; ++q) {
+      const Bounds& bp = g->piece_bounds[p];
+      const Bounds& bq = g->piece_bounds[q];
+      Vec3 gap = ((bp.center - bq.center).cwiseAbs() - bp.half - bq.half);
+      if (gap.maxCoeff() > g->adjacency_tolerance) continue;
+      fcl::DistanceResultd res;
+      bool near = false;
+      try {
+        fcl::distance(g->convex[p].get(), fcl::Transform3d::Identity(), g->convex[q].get(),
+                      fcl::Transform3d::Identity(), req, res);
+        near = res.min_distance <= g->adjacency_tolerance;
+      } catch (const std::exception&) {
+        near = true;  // FCL fails on degenerate touching configurations: they touch
+      }
+      if (near) {
+        adj[p].push_back(static_cast<int>(q));
+        adj[q].push_back(static_cast<int>(p));
+      }
+    }
+  }
+  g->adj_offset.assign(np + 1, 0);
+  for (size_t p = 0; p < np; ++p) {
+    std::sort(adj[p].begin(), adj[p].end());
+    g->adj_offset[p + 1] = g->adj_offset[p] + static_cast<int>(adj[p].size());
+    g->adj_list.insert(g->adj_list.end(), adj[p].begin(), adj[p].end());
+  }
+
+  if (with_tree) {
+    g->tree = std::make_unique<fcl::DynamicAABBTreeCollisionManagerd>();
+    std::vector<fcl::CollisionObjectd*> objs;
+    for (size_t p = 0; p < np; ++p) {
+      auto obj = std::make_unique<fcl::CollisionObjectd>(g->convex[p]);
+      obj->setUserData(reinterpret_cast<void*>(static_cast<intptr_t>(p)));
+      obj->computeAABB();
+      objs.push_back(obj.get());
+      g->tree_objects.push_back(std::move(obj));
+    }
+    g->tree->registerObjects(objs);
+    g->tree->setup();
+  }
+  return g;
+}
+
+World::World(const std::vector<const Model*>& objects) {
+  // One geometry per distinct Model (the same bundle may appear several times).
+  for (size_t i = 0; i < objects.size(); ++i) {
+    const ModelGeometry* found = nullptr;
+    for (const auto& g : owned_)
+      if (g->model == objects[i]) found = g.get();
+    bool need_tree = i > 0;
+    if (found && (!need_tree || found->tree)) {
+      per_object_.push_back(found);
+    } else if (found) {
+      // Seen before only as A: rebuild with a tree (A and some B share the model).
+      owned_.push_back(build_geometry(*objects[i], true));
+      per_object_.push_back(owned_.back().get());
+    } else {
+      owned_.push_back(build_geometry(*objects[i], need_tree));
+      per_object_.push_back(owned_.back().get());
+    }
+    if (i > 0) max_b_pieces_ = std::max(max_b_pieces_, static_cast<int>(objects[i]->pieces.size()));
+  }
+}
+
+World::~World() = default;
+
+bool piece_distance(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a, const ModelGeometry& gb,
+                    int pb, double distance_tolerance, double& d, Vec3& p_a, Vec3& p_b, Vec3& n,
+                    bool& fallback) {
+  fcl::DistanceRequestd req(true, true);
+  req.distance_tolerance = distance_tolerance;
+  fcl::DistanceResultd res;
+  fcl::Transform3d tf_a = fcl::Transform3d::Identity();
+  tf_a.linear() = b_from_a.linear();
+  tf_a.translation() = b_from_a.translation();
+  try {
+    fcl::distance(ga.convex[static_cast<size_t>(pa)].get(), tf_a, gb.convex[static_cast<size_t>(pb)].get(),
+                  fcl::Transform3d::Identity(), req, res);
+  } catch (const std::exception&) {
+    return false;
+  }
+  d = res.min_distance;
+  p_a = res.nearest_points[0];
+  p_b = res.nearest_points[1];
+  if (!std::isfinite(d) || !p_a.allFinite() || !p_b.allFinite()) return false;
+  // Separated: A moves towards B along p_b - p_a. Overlapping: p_a is A's
+  // deepest point inside B and p_b B's deepest point inside A, so A
+  // penetrates B along p_a - p_b.
+  Vec3 dir = d >= 0 ? Vec3(p_b - p_a) : Vec3(p_a - p_b);
+  double len = dir.norm();
+  // Below this the direction is numerical noise (touching pieces).
+  const double eps = 1e-7 * std::max(ga.scale, gb.scale);
+  fallback = !(len > eps);
+  if (!fallback) {
+    n = dir / len;
+    return true;
+  }
+  // Fallback: the face of B's piece whose plane lies closest to p_b (the face
+  // p_b lies on); A penetrates B against that face's outward normal.
+  const auto& planes = gb.planes[static_cast<size_t>(pb)];
+  double best = -std::numeric_limits<double>::infinity();
+  n = Vec3::UnitZ();
+  for (const Eigen::Vector4d& pl : planes) {
+    double s = pl.head<3>().dot(p_b) - pl[3];
+    if (s > best) {
+      best = s;
+      n = -pl.head<3>();
+    }
+  }
+  return true;
+}
+
+}  // namespace hrt::collision
+
+namespace hrt {
+
+using collision::Bounds;
+using collision::ModelGeometry;
+
+Scene::Scene(std::vector<const Model*> objects, const SceneOptions& options)
+    : objects_(std::move(objects)), options_(options) {
+  if (objects_.size() < 2) throw std::invalid_argument("a scene needs the probe A and at least one other object");
+  for (const Model* m : objects_)
+    if (!m) throw std::invalid_argument("a scene object is null");
+  const ForceOptions& f = options_.force;
+  if (f.resolution < 8 || f.resolution > 4096)
+    throw std::invalid_argument("resolution must be between 8 and 4096, got " + std::to_string(f.resolution));
+  if (!(f.stiffness > 0) || !std::isfinite(f.stiffness))
+    throw std::invalid_argument("stiffness must be a positive number of N/m");
+  if (!(f.lin_step >= 0) || !std::isfinite(f.lin_step) || !(f.ang_step >= 0) || !std::isfinite(f.ang_step))
+    throw std::invalid_argument("finite-difference steps must be >= 0 (0 = automatic)");
+  const ClusterOptions& c = options_.cluster;
+  if (c.max_patches < 1) throw std::invalid_argument("max_patches must be at least 1");
+  if (!(c.max_normal_angle_deg > 0 && c.max_normal_angle_deg <= 180))
+    throw std::invalid_argument("max_normal_angle_deg must be in (0, 180]");
+  if (!(c.track_radius_factor >= 0)) throw std::invalid_argument("track_radius_factor must be >= 0");
+  if (!std::isfinite(options_.collision.margin)) throw std::invalid_argument("margin must be finite");
+
+  world_ = std::make_unique<collision::World>(objects_);
+  const Model& A = *objects_[0];
+  tolerance_.assign(objects_.size(), 0.0);
+  for (size_t b = 1; b < objects_.size(); ++b) {
+    const Model& B = *objects_[b];
+    double margin = options_.collision.margin;
+    if (margin < 0) {
+      double da = A.quality.bbox_diagonal > 0 ? A.quality.bbox_diagonal : world_->geometry(0).scale;
+      double db = B.quality.bbox_diagonal > 0 ? B.quality.bbox_diagonal
+                                              : world_->geometry(static_cast<int>(b)).scale;
+      margin = options_.collision.auto_margin_fraction * std::min(da, db);
+    }
+    tolerance_[b] = A.quality.displacement_outward + A.quality.hull_deviation + B.quality.displacement_outward +
+                    B.quality.hull_deviation + margin;
+  }
+}
+
+Scene::~Scene() = default;
+
+void State::resize_pair_scratch(size_t n) {
+  pair_weight.resize(n);
+  uf_parent.resize(n);
+  pair_order.resize(n);
+  pair_cluster.resize(n);
+  cluster_weight.resize(n);
+  cluster_patch.resize(n);
+  cluster_order.resize(n);
+}
+
+State::State(const Scene& scene) {
+  const int n = scene.size();
+  poses.assign(static_cast<size_t>(n), Pose{});
+  velocities.assign(static_cast<size_t>(n), Vec6::Zero());
+  wrench_b.assign(static_cast<size_t>(n), Vec6::Zero());
+  const Model& A = scene.model(0);
+  size_t b_pieces = 0, b_faces = 0;
+  for (int b = 1; b < n; ++b) {
+    b_pieces += scene.model(b).pieces.size();
+    b_faces = std::max(b_faces, scene.model(b).faces.size());
+  }
+  // Pairs: every A piece against a handful of B pieces is generous; the
+  // buffer grows (counted in warnings.pairs_grown) if a scene needs more.
+  size_t pair_cap = std::min<size_t>(A.pieces.size() * b_pieces, std::max<size_t>(1024, 8 * A.pieces.size()));
+  pairs.resize(std::max<size_t>(pair_cap, 16));
+  resize_pair_scratch(pairs.size());
+  candidates.resize(static_cast<size_t>(std::max(1, scene.world().max_b_pieces())));
+
+  const int maxp = scene.options().cluster.max_patches;
+  patches.resize(static_cast<size_t>(maxp));
+  for (ContactPatch& p : patches) {
+    p.tris_a.reserve(A.faces.size());
+    p.tris_b.reserve(b_faces);
+  }
+  patch_ids.assign(static_cast<size_t>(maxp), 0);
+  patch_first_pair.assign(static_cast<size_t>(maxp), 0);
+  patch_pair_count.assign(static_cast<size_t>(maxp), 0);
+  tracks.resize(static_cast<size_t>(maxp));
+  next_tracks.resize(static_cast<size_t>(maxp));
+  face_mark_a.assign(A.faces.size(), 0);
+  face_mark_b.assign(b_faces, 0);
+  piece_mark_a.assign(A.pieces.size(), 0);
+  size_t maxbp = 0;
+  for (int b = 1; b < n; ++b) maxbp = std::max(maxbp, scene.model(b).pieces.size());
+  piece_mark_b.assign(maxbp, 0);
+  size_t b_vertices = 0;
+  for (int b = 1; b < n; ++b) b_vertices = std::max(b_vertices, scene.model(b).vertices.size());
+  vertex_stamp_a.assign(A.vertices.size(), 0);
+  vertex_stamp_b.assign(b_vertices, 0);
+  vertex_proj_a.assign(3 * A.vertices.size(), 0.0);
+  vertex_proj_b.assign(3 * b_vertices, 0.0);
+  tri_box_a.assign(4 * A.faces.size(), 0.0);
+  tri_box_b.assign(4 * b_faces, 0.0);
+  piece_list_a.assign(A.pieces.size(), 0);
+  piece_list_b.assign(maxbp, 0);
+  track_taken.assign(static_cast<size_t>(maxp), 0);
+  depth.reserve(scene.options().force.resolution);
+}
+
+namespace {
+
+using TreeNode = fcl::detail::NodeBase<fcl::AABBd>;
+
+// Descends B's AABB tree (built and balanced by FCL's DynamicAABBTree
+// manager) with A's piece box in B's frame; records overlapping leaves.
+// Recursive (the tree is balanced: depth ~ log2(pieces)), allocation free.
+void query_tree(const TreeNode* node, const Vec3& lo, const Vec3& hi, int* out, int& count) {
+  const fcl::AABBd& bv = node->bv;
+  if ((bv.min_.array() > hi.array()).any() || (bv.max_.array() < lo.array()).any()) return;
+  if (node->isLeaf()) {
+    auto* obj = static_cast<const fcl::CollisionObjectd*>(node->data);
+    out[count++] = static_cast<int>(reinterpret_cast<intptr_t>(obj->getUserData()));
+    return;
+  }
+  query_tree(node->children[0], lo, hi, out, count);
+  query_tree(node->children[1], lo, hi, out, count);
+}
+
+}  // namespace
+
+void detect_pairs(const Scene& scene, State& state) {
+  state.num_pairs = 0;
+  const collision::World& world = scene.world();
+  const ModelGeometry& ga = world.geometry(0);
+  const Eigen::Isometry3d world_from_a = state.poses[0].iso();
+  int* cand = state.candidates.data();
+  const int na = static_cast<int>(ga.piece_bounds.size());
+
+  for (int b = 1; b < scene.size(); ++b) {
+    const ModelGeometry& gb = world.geometry(b);
+    const double tol = scene.tolerance(b);
+    const Eigen::Isometry3d world_from_b = state.poses[static_cast<size_t>(b)].iso();
+    const Eigen::Isometry3d b_from_a = world_from_b.inverse(Eigen::Isometry) * world_from_a;
+    // GJK stops when it improves by less than this (FCL's default 1e-6 is
+    // absolute, too coarse for millimetre parts).
+    const double gjk_tol = 1e-6 * std::max(ga.scale, gb.scale);
+
+    // Object level: bounding spheres.
+    const Vec3 ca = b_from_a * ga.bounds.center;
+    if ((ca - gb.bounds.center).norm() > ga.bounds.radius + gb.bounds.radius + tol) continue;
+
+    const Eigen::Isometry3d a_from_b = b_from_a.inverse(Eigen::Isometry);
+    const TreeNode* root = gb.tree->getTree().getRoot();
+    if (!root) continue;
+    const Model& A = *ga.model;
+    const Model& B = *gb.model;
+    for (int pa = 0; pa < na; ++pa) {
+      const Bounds& bpa = ga.piece_bounds[static_cast<size_t>(pa)];
+      const Vec3 c = b_from_a * bpa.center;
+      if ((c - gb.bounds.center).norm() > bpa.radius + gb.bounds.radius + tol) continue;
+      // The exact box of A's piece in B's frame, inflated by the tolerance:
+      // every point within tol of the piece lies inside. Querying B's tree
+      // (exact boxes of B's pieces) with it is the separating-axis test on
+      // B's axes.
+      Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+      for (const Vec3& x : A.pieces[static_cast<size_t>(pa)].vertices) {
+        const Vec3 y = b_from_a * x;
+        lo = lo.cwiseMin(y);
+        hi = hi.cwiseMax(y);
+      }
+      int count = 0;
+      query_tree(root, lo - Vec3::Constant(tol), hi + Vec3::Constant(tol), cand, count);
+      std::sort(cand, cand + count);  // deterministic order whatever the tree's shape
+      const Vec3 a_lo = bpa.center - bpa.half - Vec3::Constant(tol);
+      const Vec3 a_hi = bpa.center + bpa.half + Vec3::Constant(tol);
+      for (int k = 0; k < count; ++k) {
+        const int pb = cand[k];
+        const Bounds& bpb = gb.piece_bounds[static_cast<size_t>(pb)];
+        if ((c - bpb.center).norm() - bpa.radius - bpb.radius > tol) continue;
+        // Separating-axis test on A's axes: the box of B's piece in A's frame
+        // against A's piece box grown by tol. Far cheaper than GJK, and most
+        // broad-phase candidates beyond the tolerance stop here.
+        Vec3 blo = Vec3::Constant(std::numeric_limits<double>::infinity()), bhi = -blo;
+        for (const Vec3& x : B.pieces[static_cast<size_t>(pb)].vertices) {
+          const Vec3 y = a_from_b * x;
+          blo = blo.cwiseMin(y);
+          bhi = bhi.cwiseMax(y);
+        }
+        if ((blo.array() > a_hi.array()).any() || (bhi.array() < a_lo.array()).any()) continue;
+        double d = 0;
+        Vec3 p_a, p_b, n;
+        bool fallback = false;
+        if (!collision::piece_distance(ga, pa, b_from_a, gb, pb, gjk_tol, d, p_a, p_b, n, fallback)) {
+          ++state.warnings.fcl_failures;
+          continue;
+        }
+        if (d > tol) continue;
+        if (state.num_pairs == static_cast<int>(state.pairs.size())) {
+          // Grow (an allocation, counted): the capacity was too small.
+          const size_t cap = state.pairs.size() * 2;
+          state.pairs.resize(cap);
+          state.resize_pair_scratch(cap);
+          ++state.warnings.pairs_grown;
+        }
+        PiecePair& pp = state.pairs[static_cast<size_t>(state.num_pairs++)];
+        pp.object_b = b;
+        pp.piece_a = pa;
+        pp.piece_b = pb;
+        pp.distance = d;
+        pp.tolerance = tol;
+        pp.p_a = world_from_b * p_a;
+        pp.p_b = world_from_b * p_b;
+        pp.n = world_from_b.linear() * n;
+        pp.fallback_normal = fallback;
+        if (fallback) ++state.warnings.fallback_normals;
+      }
+    }
+  }
+}
+
+}  // namespace hrt

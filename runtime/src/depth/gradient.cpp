@@ -1,0 +1,291 @@
+// delta at the 11 configurations of A and its gradient by central
+// differences (paper Eq. 7), with the optional Sec. 5.2 shortcut.
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
+#include "hrt/depth.h"
+
+namespace hrt {
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+int side_with_border(int resolution) { return resolution + 2 * DepthScratch::kReservedBorder; }
+
+void ensure_capacity(DepthScratch& s, int N, int border) {
+  const int S = N + 2 * border;
+  if (s.capacity < N) s.reserve(N);
+  if (s.ha0.size() < static_cast<size_t>(S) * S) s.ha0.resize(static_cast<size_t>(S) * S);  // one growth only
+}
+
+// max over k < n of a[k] - b[k]. -inf - finite = -inf, and (since A's
+// uncovered texels hold -inf and B's +inf) never NaN, so maxpd's NaN rule
+// does not matter. Written with SSE2 because the compiler does not
+// vectorize a max reduction without -ffast-math.
+inline double max_diff(const double* a, const double* b, int n) {
+  int i = 0;
+  double d = -kInf;
+#if defined(__SSE2__)
+  __m128d m0 = _mm_set1_pd(-kInf), m1 = m0;
+  for (; i + 4 <= n; i += 4) {
+    m0 = _mm_max_pd(m0, _mm_sub_pd(_mm_loadu_pd(a + i), _mm_loadu_pd(b + i)));
+    m1 = _mm_max_pd(m1, _mm_sub_pd(_mm_loadu_pd(a + i + 2), _mm_loadu_pd(b + i + 2)));
+  }
+  const __m128d m = _mm_max_pd(m0, m1);
+  d = std::max(_mm_cvtsd_f64(m), _mm_cvtsd_f64(_mm_unpackhi_pd(m, m)));
+#endif
+  for (; i < n; ++i) d = std::max(d, a[i] - b[i]);
+  return d;
+}
+
+// max over the N x N texels of ha(i - di, j - dj) - hb(i, j), ha stored with
+// border b (row length S = N + 2b), |di|, |dj| <= b: the depth of A
+// translated by (di, dj) whole texels (its height map moves with it).
+double shifted_depth(const double* ha, int S, int b, const double* hb, int N, int di, int dj) {
+  double d = -kInf;
+  for (int j = 0; j < N; ++j)
+    d = std::max(d, max_diff(ha + static_cast<size_t>(j - dj + b) * S + (b - di), hb + static_cast<size_t>(j) * N, N));
+  return d;
+}
+
+// Linear interpolation between the shifts floor(s) and floor(s) + 1 along
+// one axis, for a translation that is not a whole number of texels. A texel
+// is covered only when both sources are.
+double fractional_shift_depth(const double* ha, int S, int b, const double* hb, int N, double sx, double sy) {
+  const double fsx = std::floor(sx), fsy = std::floor(sy);
+  const int dx = static_cast<int>(fsx), dy = static_cast<int>(fsy);
+  const double wx = sx - fsx, wy = sy - fsy;
+  double d = -kInf;
+  for (int j = 0; j < N; ++j) {
+    for (int i = 0; i < N; ++i) {
+      // source point (i - sx, j - sy) in the bordered map
+      const int si = i - dx - (wx > 0 ? 1 : 0) + b;
+      const int sj = j - dy - (wy > 0 ? 1 : 0) + b;
+      const double fx = wx > 0 ? 1.0 - wx : 0.0, fy = wy > 0 ? 1.0 - wy : 0.0;
+      if (si < 0 || sj < 0 || si + (fx > 0) >= S || sj + (fy > 0) >= S) continue;
+      const double* r0 = ha + static_cast<size_t>(sj) * S + si;
+      const double* r1 = fy > 0 ? r0 + S : r0;
+      const double h00 = r0[0], h10 = fx > 0 ? r0[1] : h00, h01 = r1[0], h11 = fx > 0 ? r1[1] : h01;
+      double h;
+      if (fx == 0.0 && fy == 0.0) {
+        h = h00;
+      } else if (fy == 0.0) {
+        if (h00 == -kInf || h10 == -kInf) continue;
+        h = h00 + fx * (h10 - h00);
+      } else if (fx == 0.0) {
+        if (h00 == -kInf || h01 == -kInf) continue;
+        h = h00 + fy * (h01 - h00);
+      } else {
+        if (h00 == -kInf || h10 == -kInf || h01 == -kInf || h11 == -kInf) continue;
+        const double top = h00 + fx * (h10 - h00), bot = h01 + fx * (h11 - h01);
+        h = top + fy * (bot - top);
+      }
+      d = std::max(d, h - hb[static_cast<size_t>(j) * N + i]);
+    }
+  }
+  return d;
+}
+
+// The shortcut for a rotation of A by theta about the axis n through c
+// (grid coordinates (cx, cy), texel units): heights are invariant under it
+// (h = n . p), so h_A'(x) = h_A(0)(R(-theta) (x - c) + c), resampled
+// bilinearly; a texel is covered only when its four sources are.
+double rotated_depth(const double* ha, int S, int b, const double* hb, int N, double cx, double cy, double theta) {
+  const double cs = std::cos(theta), sn = std::sin(theta);
+  double d = -kInf;
+  for (int j = 0; j < N; ++j) {
+    const double ry = j - cy;
+    // Source point, affine in i: (cx + cs rx + sn ry + b, cy - sn rx + cs ry + b), rx = i - cx.
+    double sx = cx + cs * (0 - cx) + sn * ry + b;
+    double sy = cy - sn * (0 - cx) + cs * ry + b;
+    const double* rb = hb + static_cast<size_t>(j) * N;
+    for (int i = 0; i < N; ++i, sx += cs, sy -= sn) {
+      const double fsx = std::floor(sx), fsy = std::floor(sy);
+      const int si = static_cast<int>(fsx), sj = static_cast<int>(fsy);
+      if (si < 0 || sj < 0 || si + 1 >= S || sj + 1 >= S) continue;
+      const double fx = sx - fsx, fy = sy - fsy;
+      const double* r0 = ha + static_cast<size_t>(sj) * S + si;
+      const double* r1 = r0 + S;
+      const double h00 = r0[0], h10 = r0[1], h01 = r1[0], h11 = r1[1];
+      // Uncovered sources hold -inf (never +inf): one test for all four.
+      if (h00 + h10 + h01 + h11 == -kInf) continue;
+      const double top = h00 + fx * (h10 - h00), bot = h01 + fx * (h11 - h01);
+      d = std::max(d, top + fy * (bot - top) - rb[i]);
+    }
+  }
+  return d;
+}
+
+}  // namespace
+
+void DepthScratch::reserve(int resolution) {
+  if (resolution <= capacity) return;
+  const size_t n2 = static_cast<size_t>(resolution) * resolution;
+  const size_t s = static_cast<size_t>(side_with_border(resolution));
+  hb.resize(n2);
+  ha.resize(n2);
+  hcfg.resize(10 * n2);
+  if (ha0.size() < s * s) ha0.resize(s * s);
+  capacity = resolution;
+}
+
+Eigen::Isometry3d config_motion(Config c, const ContactPatch& patch, const Vec3& c_world, double lin_step,
+                                double ang_step) {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  auto rot = [&](const Vec3& axis, double angle) {
+    // Rotation about the axis through c_world: p -> c + R (p - c).
+    Eigen::Isometry3d M = Eigen::Isometry3d::Identity();
+    M.linear() = Eigen::AngleAxisd(angle, axis).toRotationMatrix();
+    M.translation() = c_world - M.linear() * c_world;
+    return M;
+  };
+  switch (c) {
+    case Config::plus_u: T.translation() = lin_step * patch.u; break;
+    case Config::minus_u: T.translation() = -lin_step * patch.u; break;
+    case Config::plus_v: T.translation() = lin_step * patch.v; break;
+    case Config::minus_v: T.translation() = -lin_step * patch.v; break;
+    case Config::plus_theta_u: T = rot(patch.u, ang_step); break;
+    case Config::minus_theta_u: T = rot(patch.u, -ang_step); break;
+    case Config::plus_theta_v: T = rot(patch.v, ang_step); break;
+    case Config::minus_theta_v: T = rot(patch.v, -ang_step); break;
+    case Config::plus_theta_n: T = rot(patch.n, ang_step); break;
+    case Config::minus_theta_n: T = rot(patch.n, -ang_step); break;
+    default: break;
+  }
+  return T;
+}
+
+double effective_lin_step(const ContactPatch& patch, const ForceOptions& opt) {
+  return opt.lin_step > 0 ? opt.lin_step : patch.window.cell;
+}
+
+double default_ang_step(const ContactPatch& patch, const Vec3& c_a_world) {
+  const Window& w = patch.window;
+  const double L = w.cell * w.resolution;
+  double R = 0;
+  for (int k = 0; k < 4; ++k) {
+    const Vec3 corner = w.origin + ((k & 1) ? L : 0.0) * patch.u + ((k & 2) ? L : 0.0) * patch.v;
+    R = std::max(R, (corner - c_a_world).norm());
+  }
+  // R >= half the window's diagonal > 0 for a valid window.
+  return R > 0 ? w.cell / R : 0.0;
+}
+
+double effective_ang_step(const ContactPatch& patch, const Vec3& c_a_world, const ForceOptions& opt) {
+  return opt.ang_step > 0 ? opt.ang_step : default_ang_step(patch, c_a_world);
+}
+
+DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
+                                     const ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch) {
+  DepthGradient out;
+  const int N = patch.window.resolution;
+  for (double& d : out.delta_at) d = -kInf;
+  out.grad << 0, 0, 1, 0, 0, 0;
+  if (N <= 0 || !(patch.window.cell > 0)) return out;
+
+  const Eigen::Isometry3d Ta = pose_a.iso();
+  const Eigen::Isometry3d Tb = pose_b.iso();
+  const Vec3 c_a = Ta * A.mass.center_of_mass;
+  const double du = effective_lin_step(patch, opt);
+  const double dth = effective_ang_step(patch, c_a, opt);
+  out.lin_step = du;
+  out.ang_step = dth;
+  const double cell = patch.window.cell;
+
+  // Border of h_A(0) for the shortcut: the largest texel displacement of the
+  // resampled configurations (translation du, n-rotation about c_A).
+  int border = 0;
+  double cx = 0, cy = 0;
+  if (opt.shortcut) {
+    cx = (c_a - patch.window.origin).dot(patch.u) / cell - 0.5;
+    cy = (c_a - patch.window.origin).dot(patch.v) / cell - 0.5;
+    double rmax = 0;  // in-plane distance (texels) from c_A to the farthest texel centre
+    for (int k = 0; k < 4; ++k) {
+      const double x = (k & 1) ? N - 1 : 0, y = (k & 2) ? N - 1 : 0;
+      rmax = std::max(rmax, std::hypot(x - cx, y - cy));
+    }
+    const double disp = std::max(du / cell, std::abs(2.0 * std::sin(0.5 * dth)) * rmax);
+    border = std::clamp(static_cast<int>(std::ceil(disp - 1e-9)), 1, N);
+  }
+  ensure_capacity(scratch, N, border);
+  const int S = N + 2 * border;
+
+  const std::vector<uint32_t>& ta = patch.tris_a;
+  const std::vector<uint32_t>& tb = patch.tris_b;
+  const Vec3 &n = patch.n, &u = patch.u, &v = patch.v;
+  rasterize_heights(B, Tb, tb, n, u, v, patch.window, 0, false, scratch.hb.data());
+  const double* hb = scratch.hb.data();
+  const double* ha0 = scratch.ha0.data();
+  const size_t n2 = static_cast<size_t>(N) * N;
+  double* D = out.delta_at;
+
+  // A at configuration 0 (with the shortcut's border) and at the
+  // configurations that are rendered: all 10 perturbed ones, or with the
+  // shortcut the 4 tilts (theta_u, theta_v). One pass over the triangles.
+  Eigen::Isometry3d T[11];
+  double* bufs[11];
+  int borders[11] = {};
+  int rendered[11];
+  int count = 0;
+  T[count] = Ta;
+  bufs[count] = scratch.ha0.data();
+  borders[count] = border;
+  rendered[count++] = 0;
+  for (int c = 1; c < static_cast<int>(Config::count); ++c) {
+    if (opt.shortcut && (c < 5 || c > 8)) continue;
+    T[count] = config_motion(static_cast<Config>(c), patch, c_a, du, dth) * Ta;
+    bufs[count] = scratch.hcfg.data() + (c - 1) * n2;
+    rendered[count++] = c;
+  }
+  rasterize_heights_multi(A, T, borders, count, ta, n, u, v, patch.window, true, bufs);
+
+  D[0] = shifted_depth(ha0, S, border, hb, N, 0, 0);
+  if (D[0] == -kInf) return out;  // nothing covered by both: no contact
+  out.covered = true;
+  out.delta = D[0];
+  for (int k = 1; k < count; ++k) D[rendered[k]] = shifted_depth(bufs[k], N, 0, hb, N, 0, 0);
+
+  if (opt.shortcut) {
+    const double s = du / cell;  // texels
+    const double rs = std::round(s);
+    if (std::abs(s - rs) < 1e-9 && rs <= border) {
+      const int m = static_cast<int>(rs);
+      D[1] = shifted_depth(ha0, S, border, hb, N, m, 0);
+      D[2] = shifted_depth(ha0, S, border, hb, N, -m, 0);
+      D[3] = shifted_depth(ha0, S, border, hb, N, 0, m);
+      D[4] = shifted_depth(ha0, S, border, hb, N, 0, -m);
+    } else {
+      D[1] = fractional_shift_depth(ha0, S, border, hb, N, s, 0);
+      D[2] = fractional_shift_depth(ha0, S, border, hb, N, -s, 0);
+      D[3] = fractional_shift_depth(ha0, S, border, hb, N, 0, s);
+      D[4] = fractional_shift_depth(ha0, S, border, hb, N, 0, -s);
+    }
+    D[9] = rotated_depth(ha0, S, border, hb, N, cx, cy, dth);
+    D[10] = rotated_depth(ha0, S, border, hb, N, cx, cy, -dth);
+  }
+
+  // Central differences (Eq. 7); one-sided when one neighbour is uncovered.
+  auto diff = [&](int plus, int minus, double step) {
+    const bool p = D[plus] > -kInf, m = D[minus] > -kInf;
+    if (!p) ++out.uncovered_configurations;
+    if (!m) ++out.uncovered_configurations;
+    if (p && m) return (D[plus] - D[minus]) / (2 * step);
+    if (p) return (D[plus] - D[0]) / step;
+    if (m) return (D[0] - D[minus]) / step;
+    return 0.0;
+  };
+  out.grad[0] = diff(1, 2, du);
+  out.grad[1] = diff(3, 4, du);
+  out.grad[2] = 1.0;
+  out.grad[3] = dth > 0 ? diff(5, 6, dth) : 0.0;
+  out.grad[4] = dth > 0 ? diff(7, 8, dth) : 0.0;
+  out.grad[5] = dth > 0 ? diff(9, 10, dth) : 0.0;
+  return out;
+}
+
+}  // namespace hrt
