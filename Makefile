@@ -54,7 +54,7 @@ demo: setup
 
 bench: setup
 	$(VENV)/bin/hbake bench
-	$(VENV)/bin/hrt bench
+	bash examples/bench_runtime.sh
 
 clean:
 	rm -rf build out

@@ -41,7 +41,8 @@ from scipy import ndimage
 
 from hbake import constants as C
 from hbake.errors import BakeFailedError
-from hbake.geometry import closest_points, face_normals, vertex_normals
+from hbake.geometry import closest_points, face_normals, signed_distances, vertex_normals
+from hbake.parameterize import barycentric_2d, texel_candidates, texel_coordinates
 from hbake.settings import AtlasSettings, CageSettings
 
 
@@ -54,10 +55,11 @@ class BakedAtlas:
     coverage: float             # fraction of texels covered
     gutter: int                 # effective gutter (>= the setting; see the module doc)
     texel_size: float           # m, median over covered texels of one texel step on the coarse surface
-    displacement_outward: float  # m, max height of the baked surface above the coarse triangles
-    displacement_inward: float   # m, max depth below
+    displacement_outward: float  # m, max distance of the baked surface outside the coarse surface
+    displacement_inward: float   # m, max distance inside
     rays: int                   # texels baked by ray casting
-    fallbacks: int              # of which no hit within max distance: closest point used
+    fallbacks: int              # covered texels whose rays found nothing: closest point used
+    border_fallbacks: int       # the same for border texels (short rays, often expected)
 
 
 def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.ndarray,
@@ -87,6 +89,15 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
         raise BakeFailedError("no texel centre lies inside a UV triangle: the atlas is too "
                               "small for the coarse mesh (raise --atlas-size)")
 
+    # Texel size: 3D length of one texel step, sqrt(3D area / texel area) per triangle.
+    tri3 = V[F]
+    area3 = 0.5 * np.linalg.norm(np.cross(tri3[:, 1] - tri3[:, 0], tri3[:, 2] - tri3[:, 0]), axis=1)
+    px = uvs * np.array([W, H])
+    e1, e2 = px[:, 1] - px[:, 0], px[:, 2] - px[:, 0]
+    areat = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    per_tri = np.sqrt(area3 / np.maximum(areat, 1e-300))
+    texel_size = float(np.median(per_tri[tri_of[covered]]))
+
     # Points on the coarse surface and interpolated normals (the cage's ray directions).
     vn = vertex_normals(V, F)
     fn = face_normals(V, F)
@@ -98,8 +109,13 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
     normal[weak] = fn[t_ids[weak]]
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
 
-    points, hit = _cast(origin, normal, full_vertices, full_faces, cage.max_ray_distance * diag,
-                        progress)
+    # Border texels extend their triangle past its edge; past a sharp coarse edge that
+    # extension leaves the surface, so their rays are kept short (a few texels) and fall
+    # back to the closest point, which keeps them next to the edge they continue.
+    reach = np.full(len(t_ids), cage.max_ray_distance * diag)
+    inside = covered[ys, xs]
+    reach[~inside] = np.minimum(reach[~inside], C.BORDER_RAY_TEXELS * texel_size)
+    points, hit = _cast(origin, normal, full_vertices, full_faces, reach, progress)
     misses = np.nonzero(~hit)[0]
     if len(misses):
         points[misses] = closest_points(full_vertices, full_faces, origin[misses])[0]
@@ -122,28 +138,23 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
         fy, fx = np.nonzero(fill)
         image[fy, fx, :3] = image[idx[0][fy, fx], idx[1][fy, fx], :3]
 
-    # Heights of the baked points over their coarse triangle's plane (outward normal).
-    h = np.einsum("kd,kd->k", points - origin, fn[t_ids])
-    outward = float(max(h.max(), 0.0))
-    inward = float(max(-h.min(), 0.0))
-
-    # Texel size: 3D length of one texel step, sqrt(3D area / texel area) per triangle.
-    tri3 = V[F]
-    area3 = 0.5 * np.linalg.norm(np.cross(tri3[:, 1] - tri3[:, 0], tri3[:, 2] - tri3[:, 0]), axis=1)
-    px = uvs * np.array([W, H])
-    e1, e2 = px[:, 1] - px[:, 0], px[:, 2] - px[:, 0]
-    areat = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-    per_tri = np.sqrt(area3 / np.maximum(areat, 1e-300))
-    cov_tris = triangle[covered]
-    texel_size = float(np.median(per_tri[cov_tris]))
+    # Displacement bounds: signed distance (outward positive) of every baked point that a
+    # lookup can read to the coarse surface. (Not the height over the texel's own
+    # triangle: near a sharp coarse edge the interpolated normal carries the ray onto the
+    # neighbouring face, far from the own plane but on the coarse surface.)
+    used = dist[ys, xs] <= math.sqrt(2.0) + 1e-9
+    sd = signed_distances(V, F, points[used])
+    outward = float(max(sd.max(initial=0.0), 0.0))
+    inward = float(max(-sd.min(initial=0.0), 0.0))
 
     return BakedAtlas(image=image, triangle=triangle, covered=covered, baked=baked,
                       coverage=float(covered.mean()), gutter=gutter, texel_size=texel_size,
                       displacement_outward=outward, displacement_inward=inward,
-                      rays=int(len(t_ids)), fallbacks=int(len(misses)))
+                      rays=int(len(t_ids)), fallbacks=int((~hit & inside).sum()),
+                      border_fallbacks=int((~hit & ~inside).sum()))
 
 
-def assign_texels(uvs: np.ndarray, W: int, H: int, chunk: int = 1 << 20):
+def assign_texels(uvs: np.ndarray, W: int, H: int, chunk: int = 1 << 18):
     """Triangle and barycentric coordinates of each texel to bake.
 
     Returns (tri (H, W) int64, -1 where none; bary (H, W, 3) float64; distance (H, W) in
@@ -151,43 +162,24 @@ def assign_texels(uvs: np.ndarray, W: int, H: int, chunk: int = 1 << 20):
     triangle at the smallest UV distance (0 inside), ties to the lower triangle id, among
     those within BAKE_BORDER_TEXELS.
     """
-    M = len(uvs)
-    # continuous texel coordinates of the corners (texel centres at integers)
-    p = np.empty((M, 3, 2))
-    p[..., 0] = uvs[..., 0] * W - 0.5
-    p[..., 1] = (1.0 - uvs[..., 1]) * H - 0.5
+    p = texel_coordinates(uvs, W, H)                           # corners, texel units
     r = C.BAKE_BORDER_TEXELS
-    lo = np.floor(p.min(axis=1) - r).astype(np.int64)
-    hi = np.ceil(p.max(axis=1) + r).astype(np.int64)
-    lo = np.maximum(lo, 0)
-    hi = np.minimum(hi, [W - 1, H - 1])
-    nx = np.maximum(hi[:, 0] - lo[:, 0] + 1, 0)
-    ny = np.maximum(hi[:, 1] - lo[:, 1] + 1, 0)
-    count = nx * ny
+    lo = np.maximum(np.floor(p.min(axis=1) - r).astype(np.int64), 0)
+    hi = np.minimum(np.ceil(p.max(axis=1) + r).astype(np.int64), [W - 1, H - 1])
     e = np.roll(p, -1, axis=1) - p                             # edges k -> k+1
     twice_area = np.abs(e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0])
+    # A UV triangle of no area covers nothing; its lookups read its neighbours' texels.
+    hi[twice_area <= C.UV_DEGENERATE_TEXELS2] = lo[twice_area <= C.UV_DEGENERATE_TEXELS2] - 1
     opposite = np.linalg.norm(np.roll(e, -1, axis=1), axis=2)  # edge opposite corner k
     altitude = twice_area[:, None] / np.maximum(opposite, 1e-300)
 
     best_d = np.full(H * W, np.inf)
     best_t = np.full(H * W, -1, dtype=np.int64)
     best_b = np.zeros((H * W, 3))
-    # Process triangles in groups holding about `chunk` candidate texels each.
-    cum = np.cumsum(count)
-    edges = np.unique(np.r_[0, np.searchsorted(cum, np.arange(chunk, cum[-1] if M else 0, chunk)) + 1, M])
-    for start, end in zip(edges[:-1], edges[1:]):
-        sel = np.arange(start, end)
-        cnt = count[sel]
-        tot = int(cnt.sum())
-        if tot == 0:
-            continue
-        t = np.repeat(sel, cnt)
-        k = np.arange(tot) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-        i = lo[t, 0] + k % nx[t]
-        j = lo[t, 1] + k // nx[t]
+    for t, i, j in texel_candidates(lo, hi, chunk):
         q = np.stack([i, j], axis=1).astype(np.float64)
         a, bb, cc = p[t, 0], p[t, 1], p[t, 2]
-        bary = _barycentric_2d(q, a, bb, cc)
+        bary = barycentric_2d(q, a, bb, cc)
         # Lower bound of the distance outside: the largest distance past an edge line
         # (barycentric k times the altitude from corner k), cheap for every candidate.
         alt = altitude[t]                                        # (tot, 3)
@@ -221,16 +213,6 @@ def _segment_distance_2d(q, a, b, c):
     return best
 
 
-def _barycentric_2d(q, a, b, c):
-    """Barycentric coordinates of 2D points q in triangles (a, b, c); may be negative."""
-    v0, v1, v2 = b - a, c - a, q - a
-    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
-    den = np.where(den == 0, 1e-300, den)
-    beta = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
-    gamma = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
-    return np.stack([1.0 - beta - gamma, beta, gamma], axis=1)
-
-
 class RayCaster:
     """Nearest-hit ray queries against a triangle mesh with embree (embreex).
 
@@ -254,12 +236,13 @@ class RayCaster:
         self.normals = n
         self.anchor = tri[:, 0]
 
-    def first_hit(self, origins: np.ndarray, directions: np.ndarray, max_distance: float):
-        """(distance, triangle) of the first hit along each ray within max_distance;
-        distance inf and triangle -1 on a miss."""
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray, max_distance):
+        """(distance, triangle) of the first hit along each ray within max_distance (a
+        scalar or one per ray); distance inf and triangle -1 on a miss."""
         o = (origins - self.center).astype(np.float32)
         d = directions.astype(np.float32)
-        res = self.scene.run(o, d, dists=np.full(len(o), max_distance, dtype=np.float32), output=1)
+        reach = np.broadcast_to(np.asarray(max_distance, dtype=np.float32), (len(o),)).copy()
+        res = self.scene.run(o, d, dists=reach, output=1)
         prim = np.asarray(res["primID"], dtype=np.int64)
         hit = prim >= 0
         dist = np.full(len(o), np.inf)
@@ -276,16 +259,17 @@ class RayCaster:
 
 
 def _cast(origin, normal, full_vertices, full_faces, max_distance, progress):
-    """Nearest surface point along +-normal within max_distance: (points, hit mask)."""
+    """Nearest surface point along +-normal within max_distance (one per ray):
+    (points, hit mask)."""
     caster = RayCaster(full_vertices, full_faces)
     n = len(origin)
     points = np.empty((n, 3))
     hit = np.zeros(n, dtype=bool)
     for s in range(0, n, C.RAY_CHUNK):
         sl = slice(s, min(n, s + C.RAY_CHUNK))
-        o, d = origin[sl], normal[sl]
-        t_pos, _ = caster.first_hit(o, d, max_distance)
-        t_neg, _ = caster.first_hit(o, -d, max_distance)
+        o, d, r = origin[sl], normal[sl], max_distance[sl]
+        t_pos, _ = caster.first_hit(o, d, r)
+        t_neg, _ = caster.first_hit(o, -d, r)
         use_neg = t_neg < t_pos
         t = np.where(use_neg, -t_neg, t_pos)
         ok = np.isfinite(t)

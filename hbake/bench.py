@@ -4,7 +4,8 @@ Bakes the shared models (``../shared/models`` from the repository root; absent
 ones are skipped) and the generated ~650k-triangle CAD part
 (:func:`hbake.procedural.cad_part`), each bake in a fresh Python process so that
 the peak resident set size is that bake's alone (``os.wait4`` returns the
-child's own ``ru_maxrss``). Prints a Markdown table: triangles in and out,
+child's own ``ru_maxrss``; Linux carries a parent's peak RSS into a forked
+child, so the parent never loads a big mesh itself). Prints a Markdown table: triangles in and out,
 convex pieces, seconds per stage, total wall time, peak RSS, and the
 reconstruction error (p95 of both directions, in texel sizes), plus the machine
 it ran on. With ``repeat > 1`` every figure is the median over the runs.
@@ -49,6 +50,10 @@ TARGET_RSS_BYTES = 4 * 1024 ** 3
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DIR = REPO_ROOT.parent / "shared" / "models"
+
+
+class BenchFailed(RuntimeError):
+    """Some bakes failed; the table of the others was printed."""
 
 
 @dataclass
@@ -114,9 +119,9 @@ def _child(input_path: str, output_path: str, overrides_json: str, result_path: 
 
     settings = BakeSettings().with_overrides(json.loads(overrides_json))
     t0 = time.perf_counter()
-    report = bake(input_path, output_path, settings, force=True, quiet=True)
+    report = bake(input_path, output_path, settings, force=True)   # quiet progress by default
     total = time.perf_counter() - t0
-    manifest = json.loads((Path(output_path) / "manifest.json").read_text())
+    manifest = report["manifest"]
     stages = _stage_seconds(report)
     q = manifest["quality"]["reconstruction"]
     texel = manifest["atlas"]["texel_size"]
@@ -129,23 +134,15 @@ def _child(input_path: str, output_path: str, overrides_json: str, result_path: 
         "p95_c2f_texels": q["coarse_to_full"]["p95"] / texel,
         "p95_f2c_texels": q["full_to_coarse"]["p95"] / texel,
         "texel_size": texel,
+        "self_peak_rss": report.get("peak_rss_bytes"),
     }
     Path(result_path).write_text(json.dumps(out))
     return 0
 
 
-def _stage_seconds(report: Any) -> dict[str, float]:
-    """Per-stage seconds from what ``hbake.bake`` returns (a mapping or an object)."""
-    timings = None
-    for name in ("timings", "stage_seconds", "stages"):
-        timings = report.get(name) if isinstance(report, dict) else getattr(report, name, None)
-        if timings:
-            break
-    if not timings:
-        return {}
-    if isinstance(timings, dict):
-        return {str(k): float(v) for k, v in timings.items()}
-    return {str(k): float(v) for k, v in timings}
+def _stage_seconds(report: dict) -> dict[str, float]:
+    """Per-stage seconds of the report ``hbake.bake`` returns, in pipeline order."""
+    return {str(k): float(v) for k, v in report.get("timings", {}).items()}
 
 
 def _bake_in_child(input_path: Path, output_path: Path, overrides: dict) -> tuple[dict, float, int]:
@@ -181,8 +178,6 @@ def _bake_in_child(input_path: Path, output_path: Path, overrides: dict) -> tupl
 
 def default_models(work_dir: Path, log=print) -> list[tuple[str, Path, str]]:
     """(name, path, unit) of the shared models present plus the generated CAD part."""
-    from hbake import procedural
-
     models = []
     if SHARED_DIR.is_dir():
         for name, unit in SHARED_MODELS.items():
@@ -195,7 +190,12 @@ def default_models(work_dir: Path, log=print) -> list[tuple[str, Path, str]]:
         log(f"bench: skipping the shared models: {SHARED_DIR} not found")
     cad = work_dir / "cad_part.ply"
     if not cad.exists():
-        procedural.generate("cad_part", cad)
+        # In a child process: Linux carries a process's peak RSS across fork and exec,
+        # so a parent that had grown by making the 650k part would inflate every
+        # child's ru_maxrss.
+        subprocess.run([sys.executable, "-c",
+                        "import sys; from hbake.procedural import generate; "
+                        "generate('cad_part', sys.argv[1])", str(cad)], check=True)
     models.append(("cad_part (generated)", cad, "m"))
     return models
 
@@ -286,19 +286,26 @@ def run_bench(models: Sequence[str | os.PathLike] | None = None,
                 if not p.is_file():
                     raise FileNotFoundError(f"bench: {p}: no such file")
                 todo.append((p.name, p, SHARED_MODELS.get(p.name, "m")))
-        rows = []
+        rows, failures = [], []
         for name, path, unit in todo:
             ov = {"load.units": unit, **(overrides or {})}
             stem = Path(name.split(" ")[0]).stem
             runs = []
-            for _ in range(repeat):
-                runs.append(_bake_in_child(path, work / f"{stem}.hbundle", ov))
+            try:
+                for _ in range(repeat):
+                    runs.append(_bake_in_child(path, work / f"{stem}.hbundle", ov))
+            except RuntimeError as exc:
+                failures.append(f"{name}: {exc}")
+                log(f"bench: {exc}")
+                continue
             row = _median_row(name, runs)
             rows.append(row)
             log(f"bench: {name}: {row.total_s:.1f} s, peak RSS {row.peak_rss / 2**20:,.0f} MiB")
         info = machine()
         log("")
         log(format_table(rows, info))
+        for f in failures:
+            log(f"FAILED: {f}")
         cad = [r for r in rows if r.model.startswith("cad_part")]
         for r in cad:
             ok = r.process_s <= TARGET_SECONDS and r.peak_rss <= TARGET_RSS_BYTES
@@ -308,8 +315,11 @@ def run_bench(models: Sequence[str | os.PathLike] | None = None,
                 f"{r.peak_rss / 2**30:.2f} GiB)")
         if json_path is not None:
             Path(json_path).write_text(json.dumps(
-                {"machine": info, "repeat": repeat, "rows": [r.to_dict() for r in rows]},
+                {"machine": info, "repeat": repeat, "rows": [r.to_dict() for r in rows],
+                 "failures": failures},
                 indent=2, sort_keys=True) + "\n")
+        if failures:
+            raise BenchFailed(f"{len(failures)} of {len(todo)} bakes failed")
         return rows
     finally:
         if tmp is not None:

@@ -106,6 +106,31 @@ def closest_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray):
     return closest, np.linalg.norm(closest - points, axis=1)
 
 
+def signed_distances(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Signed distance of ``points`` to a triangle mesh: positive on the side its face
+    normals point to (outside, for an outward mesh). MeshLab's distance filter: the sign
+    comes from the normal of the closest face."""
+    import pymeshlab
+
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        return np.zeros(0)
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    lo = np.minimum(vertices.min(axis=0), points.min(axis=0))
+    hi = np.maximum(vertices.max(axis=0), points.max(axis=0))
+    bound = 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices,
+                               face_matrix=np.ascontiguousarray(faces, dtype=np.int32)))
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
+    ms.compute_scalar_by_distance_from_another_mesh_per_vertex(
+        measuremesh=1, refmesh=0, signeddist=True, maxdist=pymeshlab.PureValue(bound))
+    d = np.asarray(ms.mesh(1).vertex_scalar_array(), dtype=np.float64)
+    if d.shape != (len(points),):
+        raise RuntimeError("signed distance changed the number of points")
+    return d
+
+
 # --------------------------------------------------------------------------------------------
 # sampling and normals
 # --------------------------------------------------------------------------------------------

@@ -153,6 +153,12 @@ def _parse(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray]:
             pywarnings.simplefilter("ignore")
             loaded = trimesh.load(str(path), force="mesh", process=False,
                                   skip_materials=True)
+    except ImportError:
+        # trimesh falls back to the optional charset_normalizer to guess the
+        # encoding of text that is not UTF-8: for a mesh file that means bytes
+        # that are neither valid text nor a valid binary layout.
+        raise InputInvalidError(f"{path}: cannot parse as {ext[1:].upper()}: the file is neither "
+                                f"UTF-8 text nor a valid binary {ext[1:].upper()}") from None
     except Exception as exc:  # trimesh raises many kinds on malformed input
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise InputInvalidError(f"{path}: cannot parse as {ext[1:].upper()}: {msg[:200]}") from None

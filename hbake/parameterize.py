@@ -78,31 +78,113 @@ def parameterize(vertices: np.ndarray, faces: np.ndarray,
         else:
             hi = mid
         steps += 1
+    best.uvs = attach_unmapped_faces(vertices, faces, best.uvs, W, H)
     best.uvs = snap_small_charts(faces, best.uvs, W, H)
     return best
 
 
-def covered_triangles(uvs: np.ndarray, W: int, H: int) -> np.ndarray:
-    """Whether each UV triangle contains at least one texel centre."""
-    p = np.empty(uvs.shape[:2] + (2,))
-    p[..., 0] = uvs[..., 0].astype(np.float64) * W - 0.5
-    p[..., 1] = (1.0 - uvs[..., 1].astype(np.float64)) * H - 0.5
-    lo = np.maximum(np.ceil(p.min(axis=1)).astype(np.int64), 0)
-    hi = np.minimum(np.floor(p.max(axis=1)).astype(np.int64), [W - 1, H - 1])
+def attach_unmapped_faces(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray,
+                          W: int, H: int) -> np.ndarray:
+    """Give faces that xatlas left without area in UV space (it parks the slivers it
+    cannot flatten at UV (0, 0)) the UVs of the edge they share with a mapped neighbour:
+    the two shared corners take the neighbour's UVs and the third corner the UV of its
+    projection onto that edge. Their lookups then read the neighbour's texels, which
+    describe the same thin strip of surface."""
+    p = texel_coordinates(uvs, W, H)
+    e = np.roll(p, -1, axis=1) - p
+    area2 = np.abs(e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0])
+    bad = area2 <= C.UV_DEGENERATE_TEXELS2
+    if not bad.any():
+        return uvs
+    uvs = uvs.copy()
+    # directed edge (a, b) of face f at corner k -> (f, k); a neighbour across the edge
+    # has the directed edge (b, a)
+    edge_of = {}
+    for f in np.nonzero(~bad)[0]:
+        for k in range(3):
+            edge_of[(int(faces[f, k]), int(faces[f, (k + 1) % 3]))] = (int(f), k)
+    todo = list(np.nonzero(bad)[0])
+    while todo:
+        left = []
+        for f in todo:
+            done = False
+            for k in range(3):
+                a, b = int(faces[f, k]), int(faces[f, (k + 1) % 3])
+                hit = edge_of.get((b, a))
+                if hit is None:
+                    continue
+                g, j = hit                                        # g's corner j is b, j+1 is a
+                uv_b, uv_a = uvs[g, j].astype(np.float64), uvs[g, (j + 1) % 3].astype(np.float64)
+                c = int(faces[f, (k + 2) % 3])
+                va, vb, vc = vertices[a], vertices[b], vertices[c]
+                d = vb - va
+                t = float(np.clip(np.dot(vc - va, d) / max(np.dot(d, d), 1e-300), 0.0, 1.0))
+                uvs[f, k] = uv_a
+                uvs[f, (k + 1) % 3] = uv_b
+                uvs[f, (k + 2) % 3] = (1 - t) * uv_a + t * uv_b
+                for kk in range(3):                              # now a mapped neighbour
+                    edge_of[(int(faces[f, kk]), int(faces[f, (kk + 1) % 3]))] = (int(f), kk)
+                done = True
+                break
+            if not done:
+                left.append(f)
+        if len(left) == len(todo):
+            break                      # isolated: no mapped neighbour anywhere
+        todo = left
+    return uvs
+
+
+def texel_candidates(lo: np.ndarray, hi: np.ndarray, chunk: int = 1 << 18):
+    """Texel centres (t, i, j) in the integer boxes [lo, hi] of triangles t, in groups of
+    about ``chunk`` candidates (whole triangles per group), so memory stays bounded."""
     nx = np.maximum(hi[:, 0] - lo[:, 0] + 1, 0)
     ny = np.maximum(hi[:, 1] - lo[:, 1] + 1, 0)
-    cnt = nx * ny
-    t = np.repeat(np.arange(len(uvs)), cnt)
-    k = np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-    q = np.stack([lo[t, 0] + k % nx[t], lo[t, 1] + k // nx[t]], axis=1).astype(np.float64)
-    a, b, c = p[t, 0], p[t, 1], p[t, 2]
+    count = nx * ny
+    m = len(count)
+    if m == 0:
+        return
+    cum = np.cumsum(count)
+    edges = np.unique(np.r_[0, np.searchsorted(cum, np.arange(chunk, cum[-1], chunk)) + 1, m])
+    for start, end in zip(edges[:-1], edges[1:]):
+        sel = np.arange(start, end)
+        cnt = count[sel]
+        tot = int(cnt.sum())
+        if tot == 0:
+            continue
+        t = np.repeat(sel, cnt)
+        k = np.arange(tot) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        yield t, lo[t, 0] + k % nx[t], lo[t, 1] + k // nx[t]
+
+
+def texel_coordinates(uvs: np.ndarray, W: int, H: int) -> np.ndarray:
+    """Continuous texel coordinates (x, y) of UVs (texel centres at integers, row 0 on top)."""
+    p = np.empty(uvs.shape[:-1] + (2,))
+    p[..., 0] = uvs[..., 0].astype(np.float64) * W - 0.5
+    p[..., 1] = (1.0 - uvs[..., 1].astype(np.float64)) * H - 0.5
+    return p
+
+
+def barycentric_2d(q, a, b, c):
+    """Barycentric coordinates of 2D points q in triangles (a, b, c); may be negative."""
     v0, v1, v2 = b - a, c - a, q - a
     den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
     den = np.where(den == 0, 1e-300, den)
     beta = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
     gamma = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
-    inside = (beta >= -C.INSIDE_EPS) & (gamma >= -C.INSIDE_EPS) & (1 - beta - gamma >= -C.INSIDE_EPS)
-    return np.bincount(t[inside], minlength=len(uvs)) > 0
+    return np.stack([1.0 - beta - gamma, beta, gamma], axis=1)
+
+
+def covered_triangles(uvs: np.ndarray, W: int, H: int) -> np.ndarray:
+    """Whether each UV triangle contains at least one texel centre."""
+    p = texel_coordinates(uvs, W, H)
+    lo = np.maximum(np.ceil(p.min(axis=1)).astype(np.int64), 0)
+    hi = np.minimum(np.floor(p.max(axis=1)).astype(np.int64), [W - 1, H - 1])
+    hit = np.zeros(len(uvs), dtype=bool)
+    for t, i, j in texel_candidates(lo, hi):
+        q = np.stack([i, j], axis=1).astype(np.float64)
+        bary = barycentric_2d(q, p[t, 0], p[t, 1], p[t, 2])
+        hit[t[bary.min(axis=1) >= -C.INSIDE_EPS]] = True
+    return hit
 
 
 def snap_small_charts(faces: np.ndarray, uvs: np.ndarray, W: int, H: int) -> np.ndarray:
@@ -121,9 +203,7 @@ def snap_small_charts(faces: np.ndarray, uvs: np.ndarray, W: int, H: int) -> np.
     if has.all():
         return uvs
     uvs = uvs.copy()
-    px = np.empty(uvs.shape, dtype=np.float64)
-    px[..., 0] = uvs[..., 0].astype(np.float64) * W - 0.5
-    px[..., 1] = (1.0 - uvs[..., 1].astype(np.float64)) * H - 0.5
+    px = texel_coordinates(uvs, W, H)
     e1, e2 = px[:, 1] - px[:, 0], px[:, 2] - px[:, 0]
     area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
     for chart in np.nonzero(~has)[0]:

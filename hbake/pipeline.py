@@ -28,6 +28,7 @@ import numpy as np
 
 from hbake import __version__
 from hbake.atlas import bake_atlas
+from hbake.bundle import BundleData, write_bundle
 from hbake.decompose import decompose
 from hbake.errors import (EXIT_USAGE, ConfigError, HbakeError, OutputExistsError,
                           OutputUnwritableError)
@@ -104,8 +105,9 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
         baked = bake_atlas(coarse.vertices, coarse.faces, param.uvs, param.width, param.height,
                            full.vertices, full.faces, settings.cage, settings.atlas,
                            progress=update)
-        if baked.fallbacks > FALLBACK_WARN_FRACTION * baked.rays:
-            warn(f"{baked.fallbacks} of {baked.rays} texels ({100 * baked.fallbacks / baked.rays:.1f}%) "
+        covered = int(baked.covered.sum())
+        if baked.fallbacks > FALLBACK_WARN_FRACTION * covered:
+            warn(f"{baked.fallbacks} of {covered} covered texels ({100 * baked.fallbacks / covered:.1f}%) "
                  f"found no surface along the normal within {settings.cage.max_ray_distance:g} of the "
                  f"bbox diagonal and use the closest point instead")
     with progress.stage("decompose"):
@@ -114,6 +116,9 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
         if not coarse.closed and solid is not None:
             warn(f"the coarse mesh is open: its holes were capped ({len(solid[1]) - len(coarse.faces)} "
                  f"triangles, not stored) for the convex pieces and the mass properties")
+        elif not coarse.closed:
+            warn("the coarse mesh is open and its holes could not be capped: CoACD remeshes it "
+                 "(slower, pieces approximate a shell) and mass properties fall back further")
         pieces = decompose(coarse.vertices, coarse.faces, settings.decompose,
                            seed=settings.seed, warn=warn, solid=solid)
     with progress.stage("mass"):
@@ -138,8 +143,6 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
 
     manifest = assemble_manifest(settings, full, coarse, param, baked, pieces, mass, quality,
                                  warnings)
-    from hbake.bundle import BundleData, write_bundle
-
     data = BundleData(
         coarse_vertices=coarse.vertices,
         coarse_faces=coarse.faces.astype(np.uint32),
@@ -162,7 +165,8 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
         "peak_rss_bytes": peak_rss_bytes(),
         "warnings": list(warnings),
         "bake": {"rays": baked.rays, "fallbacks": baked.fallbacks,
-                 "pre_decimated_faces": coarse.pre_decimated_faces},
+                 "border_fallbacks": baked.border_fallbacks,
+                 "simplify_scores": coarse.scores},
     }
 
 

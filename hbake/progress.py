@@ -69,13 +69,6 @@ class Progress:
                 self._rich.update(task, completed=t)
                 self._rich.stop_task(task)
 
-    def set_total(self, name: str, total: float) -> None:
-        """Change the total of the running stage (known only after it started)."""
-        if self._rich is not None:
-            for t in self._rich.tasks:
-                if t.description == STAGES.get(name, name) and not t.finished:
-                    self._rich.update(t.id, total=total)
-
     def warn(self, message: str) -> None:
         if self.quiet:
             return

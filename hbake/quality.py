@@ -14,8 +14,9 @@
   Distances are exact closest-point distances (``hbake.geometry.closest_points``).
   Each is reported as mean, p95 and max in meters and relative to the full mesh's
   bounding-box diagonal.
-* ``displacement_outward``/``inward``: from the bake (heights of the baked points over
-  their coarse triangle's plane).
+* ``displacement_outward``/``inward``: from the bake: the largest signed distance
+  (outside positive, by the coarse face normals) of a baked texel that a lookup can
+  read to the coarse surface.
 * ``hull_deviation``: the largest distance of a piece vertex outside the coarse surface
   (outside = generalized winding number < 1/2; an open coarse mesh is taken with its
   holes capped, and where capping fails every vertex counts, so it is the largest

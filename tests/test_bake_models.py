@@ -442,3 +442,79 @@ def test_ridged_block_profile(procedural_bundles):
     assert crossings >= 11
     # The read-back points advance along the line (no fold-back in the mapping).
     assert np.all(np.diff(p[:, 1]) > 0)
+
+
+# --------------------------------------------------------------------------
+# The shared models (real scans and CAD parts, read-only at ../shared/models)
+# --------------------------------------------------------------------------
+
+#: Bound on the p95 reconstruction error of the shared models, both directions,
+#: in texel sizes, set after measuring (default settings: 600 coarse triangles,
+#: 1024x1024 atlas; hbake bench, 2026-11-22):
+#:
+#:   model                 texel mm  median edge  5% edge   p95 c->f  p95 f->c
+#:   stanford_bunny.obj     0.299     4.9 tx      3.4 tx    0.026     0.027
+#:   armadillo.obj          1.652     3.9 tx      2.2 tx    0.053     0.066
+#:   fandisk.obj            0.100    10.1 tx      7.5 tx    0.001     0.001
+#:   rocker_arm.obj         1.577     6.3 tx      3.0 tx    0.023     0.023
+#:   hammer_scan.obj        0.106     7.5 tx      3.2 tx    0.021     0.021
+#:   mountain_terrain.obj   0.455     5.7 tx      4.6 tx    0.026     0.026
+#:   planetary_gears.stl    (bake failed, see the report)
+#:
+#: Why 0.25 texel: the worry was that scans carry relief finer than a texel.
+#: Measured, they do not: 95 % of the edges of every shared mesh are longer
+#: than two texels, so their whole relief is within what the atlas represents
+#: (Sec. 7.2), and the only error left is the bilinear interpolation across the
+#: creases of a piecewise-linear surface, a small fraction of a texel (worst
+#: p95 measured: 0.066). A quarter texel is half the procedural bound, leaves a
+#: 4x margin over the worst measurement for setting changes, and still fails a
+#: bake that is off by a quarter texel on 5 % of the surface. (The maxima are
+#: larger, up to 16 texels on the armadillo's and the bunny's thin parts and
+#: holes; p95 is the statistic the issue asks for.)
+SHARED_P95_TEXELS = 0.25
+
+
+@pytest.fixture(scope="module")
+def shared_bundles(tmp_path_factory):
+    root = tmp_path_factory.mktemp("shared")
+    cache = {}
+
+    def get(name):
+        src = SHARED_DIR / name
+        if not src.is_file():
+            pytest.skip(f"shared model {name} not found in {SHARED_DIR} "
+                        f"(the read-only third-party meshes live at ../shared/models)")
+        if name not in cache:
+            out = root / (Path(name).stem + ".hbundle")
+            cache[name] = (out, _bake(src, out, {"load.units": SHARED_MODELS[name]}))
+        return cache[name]
+
+    return get
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(SHARED_MODELS))
+def test_bake_shared(name, shared_bundles):
+    path, report = shared_bundles(name)
+    assert validate_bundle(path) == []
+    b = read_bundle(path)
+    m = b.manifest
+    texel = m["atlas"]["texel_size"]
+    rec = m["quality"]["reconstruction"]
+    c2f, f2c = rec["coarse_to_full"]["p95"] / texel, rec["full_to_coarse"]["p95"] / texel
+    assert c2f < SHARED_P95_TEXELS and f2c < SHARED_P95_TEXELS, (
+        f"{name}: p95 coarse->full {c2f:.3f}, full->coarse {f2c:.3f} texels "
+        f"(texel {texel:.3g} m, coarse {m['coarse']['triangles']} triangles)")
+    # The manifest's coarse->full figure agrees with an independent measurement.
+    full = trimesh.load(SHARED_DIR / name, force="mesh", process=False)
+    full.apply_scale({"mm": 1e-3, "cm": 1e-2, "m": 1.0, "in": 0.0254}[SHARED_MODELS[name]])
+    d = _independent_c2f(b, full)
+    assert np.percentile(d, 95) < SHARED_P95_TEXELS * texel
+    # What the shared README says about the files, as the manifest records it.
+    open_meshes = {"stanford_bunny.obj", "mountain_terrain.obj"}
+    assert m["source"]["closed"] == (name not in open_meshes)
+    assert m["mass"]["basis"] == ("full" if name not in open_meshes else m["mass"]["basis"])
+    if name in open_meshes:
+        assert m["mass"]["basis"] != "full" and any("not closed" in w for w in m["warnings"])
+    if name == "planetary_gears.stl":
+        assert m["source"]["bodies"] == 7

@@ -608,6 +608,20 @@ def test_small_charts_snap_onto_a_texel_centre():
     assert np.abs(shift).max() <= 0.5 + 1e-4 and np.allclose(shift, shift[0], atol=1e-4)
 
 
+def test_unmapped_sliver_attaches_to_its_neighbour():
+    """xatlas parks slivers it cannot flatten at UV (0, 0); they get the UVs of the edge
+    they share with a mapped neighbour (third corner: its projection onto that edge)."""
+    from hbake.parameterize import attach_unmapped_faces
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.25, -0.01, 0]], float)
+    faces = np.array([[0, 1, 2], [1, 0, 3]])          # face 1: sliver below edge 0-1
+    uvs = np.array([[[0.1, 0.1], [0.5, 0.1], [0.1, 0.5]], [[0, 0], [0, 0], [0, 0]]], np.float32)
+    out = attach_unmapped_faces(v, faces, uvs, 64, 64)
+    assert np.array_equal(out[0], uvs[0])
+    assert np.allclose(out[1, 0], uvs[0, 1]) and np.allclose(out[1, 1], uvs[0, 0])
+    assert np.allclose(out[1, 2], [0.2, 0.1])          # 1/4 of the way from vertex 0 to 1
+
+
 def test_lookups_stay_in_their_chart(stages):
     """Every texel a bilinear lookup inside a UV triangle reads was baked from a triangle
     of the same chart (no lookup crosses a seam)."""

@@ -137,9 +137,11 @@ void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptio
         std::snprintf(delta, sizeof delta, "%.5f", c.delta * 1e3);
       else
         std::snprintf(delta, sizeof delta, "uncovered");
+      // "+ 0.0" prints -0 as 0.
       std::printf("%3d %3d %5d %9s %10s  (%6.3f,%6.3f,%6.3f)  (%7.3g,%7.3g,%7.3g)  (%7.3g,%7.3g,%7.3g)\n", k,
-                  c.object_b, c.piece_pairs, tris, delta, c.n.x(), c.n.y(), c.n.z(), c.force.x(), c.force.y(),
-                  c.force.z(), c.torque.x(), c.torque.y(), c.torque.z());
+                  c.object_b, c.piece_pairs, tris, delta, c.n.x() + 0.0, c.n.y() + 0.0, c.n.z() + 0.0,
+                  c.force.x() + 0.0, c.force.y() + 0.0, c.force.z() + 0.0, c.torque.x() + 0.0, c.torque.y() + 0.0,
+                  c.torque.z() + 0.0);
     }
     std::printf("\n");
   }
