@@ -395,9 +395,19 @@ KNOWN_SHARED = {
 }
 
 
+#: Bakes measured above 30 s each on the 2-core machine (CoACD dominates; figures in
+#: /work/notes/readme_bench_bake.md): marked slow, as the project's rule asks.
+SLOW_BAKES = {"planetary_gears.stl", "stanford_bunny.obj", "mountain_terrain.obj", "cad_part"}
+
+
 def _params(names, known):
-    return [pytest.param(n, marks=pytest.mark.xfail(reason=known[n], strict=True)) if n in known
-            else n for n in names]
+    out = []
+    for n in names:
+        marks = [pytest.mark.xfail(reason=known[n], strict=True)] if n in known else []
+        if n in SLOW_BAKES:
+            marks.append(pytest.mark.slow)
+        out.append(pytest.param(n, marks=marks))
+    return out
 
 
 @pytest.mark.parametrize("name", _params(PROCEDURAL_BAKES, KNOWN_PROCEDURAL))
@@ -514,7 +524,6 @@ def shared_bundles(tmp_path_factory):
     return get
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("name", _params(SHARED_MODELS, KNOWN_SHARED))
 def test_bake_shared(name, shared_bundles):
     path, report = shared_bundles(name)
@@ -535,8 +544,9 @@ def test_bake_shared(name, shared_bundles):
     # What the shared README says about the files, as the manifest records it.
     open_meshes = {"stanford_bunny.obj", "mountain_terrain.obj"}
     assert m["source"]["closed"] == (name not in open_meshes)
-    assert m["mass"]["basis"] == ("full" if name not in open_meshes else m["mass"]["basis"])
-    if name in open_meshes:
+    if name in open_meshes:       # documented fallback, with a warning (issue 2)
         assert m["mass"]["basis"] != "full" and any("not closed" in w for w in m["warnings"])
+    else:
+        assert m["mass"]["basis"] == "full"
     if name == "planetary_gears.stl":
         assert m["source"]["bodies"] == 7
