@@ -14,7 +14,8 @@ Which texels are baked, and from which triangle:
   that triangle (on a shared edge the lower triangle id wins);
 * a texel whose centre lies within ``BAKE_BORDER_TEXELS`` (1.5) of a UV triangle but in
   none is baked from the nearest triangle, extending that triangle's plane and normal
-  field past its edge (alpha 0). A bilinear lookup at a point inside a UV triangle
+  field past its edge (alpha 0; the extension is capped at BORDER_STRETCH_TEXELS texel
+  sizes per texel, so a needle UV triangle cannot throw it off the part). A bilinear lookup at a point inside a UV triangle
   reads only texels at Chebyshev distance < 1 from it, so every texel a lookup can
   read is a genuinely baked value of the same chart (xatlas keeps charts at least
   ``padding`` >= 2 texels apart), and lookups near chart borders interpolate the
@@ -102,8 +103,10 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
     vn = vertex_normals(V, F)
     fn = face_normals(V, F)
     corner = F[t_ids]                                         # (K, 3)
-    origin = np.einsum("kc,kcd->kd", b, V[corner])
-    normal = np.einsum("kc,kcd->kd", b, vn[corner])
+    inside = covered[ys, xs]
+    origin, b_clamped = _origins(V[corner], b, inside, texel_coordinates(uvs[t_ids], W, H),
+                                 np.stack([xs, ys], axis=1).astype(np.float64), texel_size)
+    normal = np.einsum("kc,kcd->kd", b_clamped, vn[corner])
     length = np.linalg.norm(normal, axis=1)
     weak = length < 1e-6                                       # opposite normals cancel
     normal[weak] = fn[t_ids[weak]]
@@ -113,7 +116,6 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
     # extension leaves the surface, so their rays are kept short (a few texels) and fall
     # back to the closest point, which keeps them next to the edge they continue.
     reach = np.full(len(t_ids), cage.max_ray_distance * diag)
-    inside = covered[ys, xs]
     reach[~inside] = np.minimum(reach[~inside], C.BORDER_RAY_TEXELS * texel_size)
     points, hit = _cast(origin, normal, full_vertices, full_faces, reach, progress)
     misses = np.nonzero(~hit)[0]
@@ -152,6 +154,49 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
                       displacement_outward=outward, displacement_inward=inward,
                       rays=int(len(t_ids)), fallbacks=int((~hit & inside).sum()),
                       border_fallbacks=int((~hit & ~inside).sum()))
+
+
+def _origins(corners3, bary, inside, corners_px, q, texel_size):
+    """Coarse-surface points of the texels to bake, and the barycentric coordinates
+    (clamped onto the triangle for border texels) that interpolate their normals.
+
+    Covered texels use their barycentric coordinates as they are. A border texel lies
+    outside its UV triangle: its point is the triangle's point nearest in UV, moved on by
+    the triangle's affine map of the remaining UV offset, with that move capped at
+    BORDER_STRETCH_TEXELS texel sizes per texel. The affine map of a needle UV triangle
+    is huge across the needle, and the uncapped extrapolation lands far off the part.
+    """
+    origin = np.einsum("kc,kcd->kd", bary, corners3)
+    clamped = bary.copy()
+    out = np.nonzero(~inside)[0]
+    if len(out) == 0:
+        return origin, clamped
+    a, bb, cc = corners_px[out, 0], corners_px[out, 1], corners_px[out, 2]
+    near = _closest_on_triangle_2d(q[out], a, bb, cc)
+    bn = np.clip(barycentric_2d(near, a, bb, cc), 0.0, 1.0)
+    bn /= np.maximum(bn.sum(axis=1, keepdims=True), 1e-300)
+    base = np.einsum("kc,kcd->kd", bn, corners3[out])
+    step = origin[out] - base
+    length = np.linalg.norm(step, axis=1)
+    cap = C.BORDER_STRETCH_TEXELS * texel_size * np.linalg.norm(q[out] - near, axis=1)
+    scale = np.where(length > cap, cap / np.maximum(length, 1e-300), 1.0)
+    origin[out] = base + scale[:, None] * step
+    clamped[out] = bn
+    return origin, clamped
+
+
+def _closest_on_triangle_2d(q, a, b, c):
+    """Nearest point of the boundary of 2D triangles (a, b, c) to points q outside them."""
+    best = np.full(len(q), np.inf)
+    point = np.empty_like(q)
+    for s0, s1 in ((a, b), (b, c), (c, a)):
+        e = s1 - s0
+        t = np.clip(np.einsum("kd,kd->k", q - s0, e) / np.maximum(np.einsum("kd,kd->k", e, e), 1e-300), 0.0, 1.0)
+        p = s0 + t[:, None] * e
+        d = np.linalg.norm(q - p, axis=1)
+        closer = d < best
+        best[closer], point[closer] = d[closer], p[closer]
+    return point
 
 
 def assign_texels(uvs: np.ndarray, W: int, H: int, chunk: int = 1 << 18):
@@ -204,13 +249,7 @@ def assign_texels(uvs: np.ndarray, W: int, H: int, chunk: int = 1 << 18):
 
 def _segment_distance_2d(q, a, b, c):
     """Distance of 2D points q to the boundary of triangles (a, b, c)."""
-    best = np.full(len(q), np.inf)
-    for s0, s1 in ((a, b), (b, c), (c, a)):
-        e = s1 - s0
-        w = q - s0
-        t = np.clip(np.einsum("kd,kd->k", w, e) / np.maximum(np.einsum("kd,kd->k", e, e), 1e-300), 0.0, 1.0)
-        best = np.minimum(best, np.linalg.norm(w - t[:, None] * e, axis=1))
-    return best
+    return np.linalg.norm(q - _closest_on_triangle_2d(q, a, b, c), axis=1)
 
 
 class RayCaster:

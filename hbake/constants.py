@@ -62,6 +62,14 @@ DEFAULT_NORMAL_DEVIATION_WEIGHT = 2.0
 #: size; stop when the density is known to within this ratio.
 PACK_SEARCH_RATIO = 1.02
 PACK_SEARCH_MAX_STEPS = 14
+#: A packing is accepted only when every chart of at least PACK_DENSITY_MIN_CHART_TEXELS2
+#: texels^2 has at least this fraction of the requested texel density (linear): xatlas
+#: shrinks charts that do not fit its page on their own (see hbake/parameterize.py).
+#: Charts it does not shrink keep their density to about 2 % (measured on a 160 mm bar;
+#: they come out slightly denser), so 0.97 passes them and refuses the 8x shrink
+#: measured on the rasp as well as a 10 % one.
+PACK_MIN_DENSITY_RATIO = 0.97
+PACK_DENSITY_MIN_CHART_TEXELS2 = 64.0
 
 # --- cage bake -----------------------------------------------------------------------------
 #: Rays from the coarse surface reach at most this fraction of the bbox diagonal;
@@ -78,6 +86,12 @@ BAKE_BORDER_TEXELS = 1.5
 #: the lower triangle id wins).
 INSIDE_EPS = 1e-9
 #: Rays of border texels reach at most this many texel sizes (see hbake/atlas.py).
+#: A border texel's origin is extrapolated past its triangle's edge by at most this many
+#: texel sizes per texel of UV distance. A well-shaped triangle maps one texel to about
+#: one texel size, so the cap only bites on needle UV triangles, whose affine map
+#: explodes across the needle (measured: barycentrics of 1.7e6 on the ridged block's
+#: coarse mesh put border texels at the block's far corner, 36 mm away).
+BORDER_STRETCH_TEXELS = 2.0
 BORDER_RAY_TEXELS = 4.0
 #: UV triangles with twice their area below this (texels^2) are skipped by the bake.
 UV_DEGENERATE_TEXELS2 = 1e-9

@@ -5,7 +5,11 @@ alone is not a hard cap (a 600-triangle hammer asked for 1024 comes out 1444 x 7
 the texel density ``texels_per_unit`` is searched by bisection for the densest packing
 that fits: for a square atlas, xatlas packs into pages of exactly ``W x W`` and the
 search keeps a single page; for a non-square one, xatlas sizes one atlas to the content
-(``resolution = 0``) and the search keeps it within ``W x H``. Charts keep ``padding``
+(``resolution = 0``) and the search keeps it within ``W x H``. The search also refuses a
+packing in which xatlas shrank a chart to fit (it does that to charts larger than its
+page, leaving the others at the requested density): every chart gets one texel density,
+which is what the manifest's texel size and the Sec. 7.2 resolution limit assume.
+Charts keep ``padding``
 texels between them and
 xatlas's ``bilinear`` margin, so a bilinear lookup inside one chart never reads a texel
 another chart covers.
@@ -48,13 +52,28 @@ def parameterize(vertices: np.ndarray, faces: np.ndarray,
     if not area > 0:
         raise BakeFailedError("cannot parameterize: the coarse mesh has no area")
 
+    best = _search(vertices, faces, settings, area, uniform=True)
+    if best is None:
+        # Every chart at one density never fitted (cannot happen with xatlas's own charts,
+        # which fit at a small enough density; kept so a future xatlas cannot fail a bake).
+        best = _search(vertices, faces, settings, area, uniform=False)
+    if best is None:
+        raise BakeFailedError(f"could not pack the charts into a {W}x{H} atlas")
+    best.uvs = attach_unmapped_faces(vertices, faces, best.uvs, W, H)
+    best.uvs = snap_small_charts(faces, best.uvs, W, H)
+    return best
+
+
+def _search(vertices, faces, settings, area, uniform):
+    """Bisection for the densest packing that fits one W x H page (see the module doc)."""
+    W, H = settings.atlas_width, settings.atlas_height
     # Start from the density at which the charts, without padding or distortion, would
-    # fill W x H; walk up while that fits, then down until it fits, then bisect.
+    # fill W x H; walk up while that fits, or down until it fits, then bisect between
+    # fitting and not fitting.
     lo = hi = math.sqrt(W * H / area)
     best = None
-    # Walk down until the packing fits, then bisect between fitting and not fitting.
     for _ in range(C.PACK_SEARCH_MAX_STEPS):
-        res = _pack(vertices, faces, settings, hi)
+        res = _pack(vertices, faces, settings, hi, uniform)
         if res is None:
             break
         lo, best = hi, res
@@ -62,24 +81,22 @@ def parameterize(vertices: np.ndarray, faces: np.ndarray,
     if best is None:
         for _ in range(C.PACK_SEARCH_MAX_STEPS):
             lo *= 0.7
-            res = _pack(vertices, faces, settings, lo)
+            res = _pack(vertices, faces, settings, lo, uniform)
             if res is not None:
                 best = res
                 break
             hi = lo
     if best is None:
-        raise BakeFailedError(f"could not pack the charts into a {W}x{H} atlas")
+        return None
     steps = 0
     while hi / lo > C.PACK_SEARCH_RATIO and steps < C.PACK_SEARCH_MAX_STEPS:
         mid = math.sqrt(lo * hi)
-        res = _pack(vertices, faces, settings, mid)
+        res = _pack(vertices, faces, settings, mid, uniform)
         if res is not None:
             lo, best = mid, res
         else:
             hi = mid
         steps += 1
-    best.uvs = attach_unmapped_faces(vertices, faces, best.uvs, W, H)
-    best.uvs = snap_small_charts(faces, best.uvs, W, H)
     return best
 
 
@@ -217,9 +234,10 @@ def snap_small_charts(faces: np.ndarray, uvs: np.ndarray, W: int, H: int) -> np.
     return uvs
 
 
-def _pack(vertices, faces, settings: ParameterizeSettings,
-          texels_per_unit: float) -> Parameterization | None:
-    """Pack at the given density; None when the charts do not fit one W x H atlas."""
+def _pack(vertices, faces, settings: ParameterizeSettings, texels_per_unit: float,
+          uniform: bool = True) -> Parameterization | None:
+    """Pack at the given density; None when the charts do not fit one W x H atlas (or,
+    with ``uniform``, when xatlas had to shrink a chart to make them fit)."""
     import xatlas
 
     W, H = settings.atlas_width, settings.atlas_height
@@ -248,6 +266,8 @@ def _pack(vertices, faces, settings: ParameterizeSettings,
     # xatlas's normalised uv times its size is the position in texels from the top-left
     # corner of its atlas; place that at the top-left of the W x H atlas.
     px = np.asarray(uv, dtype=np.float64)[idx] * np.array([w, h], dtype=np.float64)
+    if uniform and not _uniform_density(vertices, faces, px, texels_per_unit):
+        return None
     u = px[..., 0] / W
     v = 1.0 - px[..., 1] / H
     uvs = np.stack([u, v], axis=-1).astype(np.float32)
@@ -255,6 +275,34 @@ def _pack(vertices, faces, settings: ParameterizeSettings,
     return Parameterization(uvs=uvs, width=W, height=H, packed_width=w, packed_height=h,
                             charts=int(atlas.chart_count), texels_per_unit=float(texels_per_unit),
                             utilization=float(atlas.utilization[0]) if hasattr(atlas.utilization, "__len__") else float(atlas.utilization))
+
+
+def _uniform_density(vertices, faces, px, texels_per_unit) -> bool:
+    """Whether every chart has (about) the requested texel density.
+
+    xatlas scales down a chart that would not fit its page on its own, while the others
+    keep the density asked for. On a long bar (the procedural rasp: 160 mm faces, 6 mm
+    end caps) that gave the end caps 8 times the faces' density and 66 % of the texels,
+    so the texel size of the toothed faces, the ones that matter, was 8 times the
+    manifest's. One density for the whole mesh is what the texel size and the Sec. 7.2
+    resolution limit mean, so such a packing counts as not fitting and the search lowers
+    the density until every chart fits at it.
+    """
+    tri = np.asarray(vertices, dtype=np.float64)[faces]
+    area3 = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    e1, e2 = px[:, 1] - px[:, 0], px[:, 2] - px[:, 0]
+    areat = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    # Per chart (xatlas's scale is per chart): UV area in texels against the 3D area at the
+    # requested density. Charts are found from the UVs as in chart_labels; stretch inside
+    # a chart averages out over its area.
+    charts = chart_labels(faces, (px / np.maximum(px.max(), 1.0)).astype(np.float32))
+    a3 = np.bincount(charts, weights=area3)
+    at = np.bincount(charts, weights=areat)
+    # Only charts of some size: xatlas shrinks the big ones, and a small one's area is off
+    # by its rounding to whole texels (measured: +2.5 % on a 35 x 10 texel chart).
+    big = (a3 > 0) & (at >= C.PACK_DENSITY_MIN_CHART_TEXELS2)
+    ratio = np.sqrt(at[big] / (a3[big] * texels_per_unit ** 2))
+    return bool(ratio.min(initial=1.0) >= C.PACK_MIN_DENSITY_RATIO)
 
 
 def chart_labels(faces: np.ndarray, uvs: np.ndarray) -> np.ndarray:

@@ -381,14 +381,7 @@ def procedural_bundles(tmp_path_factory):
 
 
 #: Known failures, measured, kept visible (strict: a fix makes them fail as XPASS).
-KNOWN_PROCEDURAL = {
-    "rasp": "parameterize: the density search asks xatlas for ~51k texels/m with resolution "
-            "1024; xatlas then shrinks the 160 mm top/bottom charts to fit the page (6.4k "
-            "texels/m) while the 20x6 mm end caps keep 51k, so 13 end-cap triangles (2.9 % of "
-            "the area) take 66 % of the texels and the manifest texel_size (median over "
-            "texels) is 0.0195 mm instead of the toothed faces' 0.156 mm; measured p95 "
-            "14.3 um = 0.74 of that texel size (0.09 of the toothed faces' texel)",
-}
+KNOWN_PROCEDURAL: dict[str, str] = {}
 KNOWN_SHARED = {
     "planetary_gears.stl": "600 coarse faces for 7 gear bodies cannot follow the teeth; measured "
                            "full->coarse p95 0.73 texel > 0.25 (0.069 at --target-faces 2000)",

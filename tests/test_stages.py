@@ -507,6 +507,35 @@ def test_bake_border_texels_and_gutter():
     assert np.isfinite(img).all()
 
 
+def test_border_texels_of_a_needle_stay_near_it():
+    """A UV needle whose 3D triangle is well shaped: across the needle one texel maps to
+    hundreds of texel sizes, and extrapolating its affine map 1.5 texels put border texels
+    far off the part (measured on the ridged block: 36 mm on an 80 mm part, read by
+    lookups next to the needle). The extrapolation is capped at BORDER_STRETCH_TEXELS
+    texel sizes per texel, so every baked texel stays within
+    BAKE_BORDER_TEXELS * BORDER_STRETCH_TEXELS texel sizes of the coarse surface."""
+    from hbake.atlas import bake_atlas
+
+    W = H = 64
+    cv = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
+    cf = np.array([[0, 1, 2], [1, 3, 2]])
+    # texel coordinates (x, y); face 1's corner 3 sits 0.01 texel off the edge 1-2
+    px = np.array([[[10, 42], [42, 42], [10, 10]],
+                   [[42, 42], [26.007, 25.993], [10, 10]]], float)
+    uvs = np.stack([(px[..., 0] + 0.5) / W, 1 - (px[..., 1] + 0.5) / H], -1).astype(np.float32)
+    full = trimesh.creation.box(extents=[400, 400, 0.2])
+    full.apply_translation([0, 0, -0.1])           # top face at z = 0, far beyond the square
+    baked = bake_atlas(cv, cf, uvs, W, H, full.vertices, full.faces)
+    texel = baked.texel_size
+    assert texel == pytest.approx(1 / 32, rel=1e-6)
+    needle = baked.baked & (baked.triangle == 1)
+    assert needle.sum() > 10                       # the needle owns border texels
+    p = baked.image[baked.baked, :2].astype(np.float64)
+    outside = np.maximum(np.maximum(-p, p - 1), 0).max(axis=1)   # distance past the square
+    reach = C.BAKE_BORDER_TEXELS * C.BORDER_STRETCH_TEXELS * texel
+    assert outside.max() <= reach * (1 + 1e-6), (outside.max() / texel, "texel sizes")
+
+
 def test_gutter_widens_for_sliver_tips():
     """A UV sliver whose tip runs many texels past the last covered texel: every texel a
     lookup inside it can read must lie within the (effective) gutter."""
@@ -589,6 +618,32 @@ def test_parameterization_invariants(stages):
     has = np.zeros(charts.max() + 1, bool)
     has[charts[covered_triangles(p.uvs, p.width, p.height)]] = True
     assert has.all()                                          # every chart covers a texel
+
+
+def test_one_texel_density_for_every_chart():
+    """A long bar (160 x 20 x 6 mm, like the procedural rasp): xatlas shrinks the charts
+    of the long faces to fit its page and leaves the end caps at the requested density
+    (measured before the fix: end caps at 8x the faces' density). Every chart must get
+    the density the packer settled on, less at most the 3 % it allows
+    (C.PACK_MIN_DENSITY_RATIO)."""
+    from hbake.parameterize import chart_labels, parameterize, texel_coordinates
+    from hbake.settings import ParameterizeSettings
+
+    bar = trimesh.creation.box(extents=[0.16, 0.02, 0.006])
+    res = parameterize(bar.vertices, bar.faces, ParameterizeSettings(atlas_width=256, atlas_height=256))
+    px = texel_coordinates(res.uvs, 256, 256)
+    e1, e2 = px[:, 1] - px[:, 0], px[:, 2] - px[:, 0]
+    at = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    charts = chart_labels(bar.faces, res.uvs)
+    assert charts.max() >= 1                                   # several charts
+    density = np.sqrt(np.bincount(charts, at) / np.bincount(charts, bar.area_faces))
+    # No chart below 97 % of the density the search settled on; none above it by more
+    # than xatlas's own rounding (measured: +2.5 %).
+    assert density.min() >= C.PACK_MIN_DENSITY_RATIO * res.texels_per_unit, density
+    assert density.max() <= 1.05 * res.texels_per_unit, density
+    # ... which is about the most that fits: the 160 mm faces across the 256-texel page
+    # (the 3 % xatlas may shrink them by, and the rest of its rounding, on top).
+    assert 0.8 * 256 / 0.16 <= res.texels_per_unit <= 1.05 * 256 / 0.16
 
 
 def test_small_charts_snap_onto_a_texel_centre():
