@@ -74,6 +74,21 @@ def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: n
     return point, bary
 
 
+def _mesh_and_points(vertices, faces, points):
+    """A MeshSet with the mesh (id 0) and the points (id 1), and a search bound beyond
+    any possible distance between them (MeshLab's filters skip points past their bound)."""
+    import pymeshlab
+
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    lo = np.minimum(vertices.min(axis=0), points.min(axis=0))
+    hi = np.maximum(vertices.max(axis=0), points.max(axis=0))
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices,
+                               face_matrix=np.ascontiguousarray(faces, dtype=np.int32)))
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
+    return ms, 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
+
+
 def closest_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray):
     """Exact closest points of a triangle mesh to ``points``: (closest (n, 3), distance (n,)).
 
@@ -87,14 +102,7 @@ def closest_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray):
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     if len(points) == 0:
         return np.zeros((0, 3)), np.zeros(0)
-    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
-    lo = np.minimum(vertices.min(axis=0), points.min(axis=0))
-    hi = np.maximum(vertices.max(axis=0), points.max(axis=0))
-    bound = 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices,
-                               face_matrix=np.ascontiguousarray(faces, dtype=np.int32)))
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
+    ms, bound = _mesh_and_points(vertices, faces, points)
     ms.transfer_attributes_per_vertex(sourcemesh=0, targetmesh=1, geomtransfer=True,
                                       colortransfer=False, normaltransfer=False,
                                       qualitytransfer=False, selectiontransfer=False,
@@ -115,14 +123,7 @@ def signed_distances(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     if len(points) == 0:
         return np.zeros(0)
-    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
-    lo = np.minimum(vertices.min(axis=0), points.min(axis=0))
-    hi = np.maximum(vertices.max(axis=0), points.max(axis=0))
-    bound = 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices,
-                               face_matrix=np.ascontiguousarray(faces, dtype=np.int32)))
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
+    ms, bound = _mesh_and_points(vertices, faces, points)
     ms.compute_scalar_by_distance_from_another_mesh_per_vertex(
         measuremesh=1, refmesh=0, signeddist=True, maxdist=pymeshlab.PureValue(bound))
     d = np.asarray(ms.mesh(1).vertex_scalar_array(), dtype=np.float64)
