@@ -240,7 +240,7 @@ def test_cad_texture(meshes):
 from pathlib import Path  # noqa: E402
 
 from hbake import bake  # noqa: E402
-from hbake.bench import SHARED_MODELS  # noqa: E402
+from hbake.bench import SHARED_MODELS, SHARED_OVERRIDES  # noqa: E402
 from hbake.bundle import atlas_lookup, read_bundle, validate_bundle  # noqa: E402
 from hbake.settings import BakeSettings  # noqa: E402
 
@@ -384,16 +384,9 @@ def procedural_bundles(tmp_path_factory):
 KNOWN_PROCEDURAL: dict[str, str] = {}
 KNOWN_SHARED: dict[str, str] = {}
 
-#: Settings per shared model, where the defaults do not suit it (measured, hbake bake,
-#: 2026-11-22). planetary_gears.stl is an assembly of 7 gear bodies baked as one object:
-#: at the default 600 coarse faces (86 per gear) the coarse gears cannot follow the teeth
-#: and rays from them miss the tooth flanks (full->coarse p95 0.73 texel, the bake warns);
-#: at 1200 faces p95 is 0.066 / 0.14 texel. CoACD at its default threshold 0.05 then cuts
-#: the overlapping coarse teeth into 328 pieces in 257 s; at 0.1, 51 pieces in 14 s (hull
-#: deviation 4 um, volume excess 30 %: the union counts the overlap of the meshing teeth).
-SHARED_BAKES = {
-    "planetary_gears.stl": {"simplify.target_faces": 1200, "decompose.threshold": 0.1},
-}
+#: Settings per shared model where the defaults do not suit it: hbake.bench.SHARED_OVERRIDES
+#: (the planetary gears; the measurements are there).
+SHARED_BAKES = SHARED_OVERRIDES
 
 
 #: Bakes measured at 25 s or more each on the 2-core machine (CoACD dominates; figures in
