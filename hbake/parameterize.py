@@ -103,9 +103,9 @@ def _search(vertices, faces, settings, area, uniform):
 def attach_unmapped_faces(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray,
                           W: int, H: int) -> np.ndarray:
     """Give faces that xatlas left without area in UV space (it parks the slivers it
-    cannot flatten at UV (0, 0)) the UVs of the edge they share with a mapped neighbour:
-    the two shared corners take the neighbour's UVs and the third corner the UV of its
-    projection onto that edge. Their lookups then read the neighbour's texels, which
+    cannot flatten at UV (0, 0)) the UVs of the edge they share with a mapped neighbour,
+    preferring their longest edge: the two shared corners take the neighbour's UVs and the
+    third corner the UV of its projection onto that edge. Their lookups then read the neighbour's texels, which
     describe the same thin strip of surface."""
     p = texel_coordinates(uvs, W, H)
     e = np.roll(p, -1, axis=1) - p
@@ -125,7 +125,12 @@ def attach_unmapped_faces(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarr
         left = []
         for f in todo:
             done = False
-            for k in range(3):
+            # Longest edge first: these faces are caps (a vertex on or near the opposite
+            # edge), and only across their long edge does the third vertex project inside
+            # the shared edge; across a short one it would be clamped to an end and the
+            # face's lookups would read surface texels up to the face's length away.
+            length = np.linalg.norm(vertices[faces[f]] - vertices[np.roll(faces[f], -1)], axis=1)
+            for k in np.argsort(-length, kind="stable"):
                 a, b = int(faces[f, k]), int(faces[f, (k + 1) % 3])
                 hit = edge_of.get((b, a))
                 if hit is None:

@@ -677,6 +677,24 @@ def test_unmapped_sliver_attaches_to_its_neighbour():
     assert np.allclose(out[1, 2], [0.2, 0.1])          # 1/4 of the way from vertex 0 to 1
 
 
+def test_unmapped_cap_attaches_across_its_long_edge():
+    """A cap (vertex 3 on the long edge 0-1 of face 2) has mapped neighbours across its
+    long edge (face 0) and a short one (face 1). Attached across the short edge, its far
+    corner would clamp to an end of that edge, 3/4 of the cap's length from where it is
+    (measured on fandisk: lookups 30 texels from their coarse point); across the long
+    edge every corner keeps its place along the edge."""
+    from hbake.parameterize import attach_unmapped_faces
+
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.25, -0.001, 0], [0.1, -0.5, 0]], float)
+    faces = np.array([[0, 1, 2], [3, 0, 4], [0, 3, 1]])     # face 1 across the short edge 0-3
+    uvs = np.array([[[0.1, 0.1], [0.5, 0.1], [0.1, 0.5]],
+                    [[0.6, 0.6], [0.7, 0.6], [0.6, 0.7]],
+                    [[0, 0], [0, 0], [0, 0]]], np.float32)
+    out = attach_unmapped_faces(v, faces, uvs, 64, 64)
+    assert np.allclose(out[2, 0], uvs[0, 0]) and np.allclose(out[2, 2], uvs[0, 1])
+    assert np.allclose(out[2, 1], [0.2, 0.1])                # vertex 3: 1/4 along 0 -> 1
+
+
 def test_lookups_stay_in_their_chart(stages):
     """Every texel a bilinear lookup inside a UV triangle reads was baked from a triangle
     of the same chart (no lookup crosses a seam)."""
