@@ -62,6 +62,20 @@ struct SynthBlock {
 
 SynthBlock make_block(const BlockSpec& spec);
 
+// The 20 mm block with a sine grating of the given amplitude, wavelength and
+// angle on its face (8 x 8 quads, 1024^2 atlas): the B side of the random
+// rotated scenes of the shortcut and energy tests.
+inline BlockSpec sine_grating_spec(double amplitude, double wavelength, double angle) {
+  BlockSpec s;
+  s.atlas_size = 1024;
+  s.subdiv = 8;
+  s.relief.profile = Profile::sine;
+  s.relief.amplitude = amplitude;
+  s.relief.wavelength = wavelength;
+  s.relief.angle = angle;
+  return s;
+}
+
 // Bound on |bilinear atlas interpolation - closed form| of the textured face's
 // z (m): curvature * t^2 / 8 with t the atlas texel diagonal (linear
 // interpolation error of a C2 function), 0 for flat faces.

@@ -28,13 +28,7 @@ struct Scene {
 // border of the shortcut's h_A(0) matters. Randomly rotated scene.
 Scene make_scene(bool small_a, int seed) {
   const double a = 1e-4, lam = 2e-3, phi = 23 * kPi / 180, kk = 2 * kPi / lam;
-  synth::BlockSpec sb;
-  sb.atlas_size = 1024;
-  sb.subdiv = 8;
-  sb.relief.profile = synth::Profile::sine;
-  sb.relief.amplitude = a;
-  sb.relief.wavelength = lam;
-  sb.relief.angle = phi;
+  const synth::BlockSpec sb = synth::sine_grating_spec(a, lam, phi);
   Scene S;
   S.B = synth::make_block(sb);
   synth::BlockSpec sa = sb;

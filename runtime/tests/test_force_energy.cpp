@@ -42,13 +42,7 @@ struct EnergyScene {
 // smooth function of A's configuration.
 EnergyScene make_scene(std::mt19937& rng, double s_over_lambda, double bump) {
   const double a = 1e-4, lam = 2e-3, phi = 23.0 * kPi / 180;
-  synth::BlockSpec sb;
-  sb.atlas_size = 1024;
-  sb.subdiv = 8;
-  sb.relief.profile = synth::Profile::sine;
-  sb.relief.amplitude = a;
-  sb.relief.wavelength = lam;
-  sb.relief.angle = phi;
+  const synth::BlockSpec sb = synth::sine_grating_spec(a, lam, phi);
   EnergyScene S;
   S.B = synth::make_block(sb);
   synth::BlockSpec sa = sb;
