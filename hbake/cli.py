@@ -215,7 +215,8 @@ def print_summary(result: dict) -> None:
     rows.append(("mass (unit density)", f"{ms['basis']}: volume {ms['volume']:.4g} m^3, "
                                         f"COM [{', '.join(f'{c:.4g}' for c in ms['center_of_mass'])}]"))
     rows.append(("time", ", ".join(f"{k} {v:.2f}s" for k, v in result["timings"].items())
-                 + f"; total {result['total_seconds']:.1f} s"))
+                 + f"; total {result['total_seconds']:.1f} s (decompose runs alongside "
+                   f"parameterize and bake)"))
     rows.append(("peak memory", f"{result['peak_rss_bytes'] / 2**20:,.0f} MiB"))
     if m["warnings"]:
         rows.append(("warnings", f"{len(m['warnings'])} (in manifest.json)"))

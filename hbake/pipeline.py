@@ -7,6 +7,7 @@ Cage-bake route (``method = "cage"``), data flow per stage:
     parameterize coarse mesh                  -> per-corner UVs, atlas size
     bake         coarse + UVs + full mesh     -> atlas (f of Sec. 5.1), displacement bounds
     decompose    coarse mesh                  -> convex pieces + piece <-> triangle map
+                 (in a thread, alongside parameterize and bake: it needs only the coarse mesh)
     mass         full (or coarse, or hull)    -> volume, centre of mass, inertia
     quality      all of the above             -> reconstruction errors, hull measures
     write        everything                   -> OUT.hbundle (atomic, byte-deterministic)
@@ -20,6 +21,7 @@ from __future__ import annotations
 import os
 import platform
 import resource
+import threading
 import time
 from importlib import metadata
 from pathlib import Path
@@ -99,6 +101,20 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
     with progress.stage("simplify"):
         coarse = simplify(full.vertices, full.faces, settings.simplify,
                           input_closed=full.closed, warn=warn)
+    # An open coarse mesh is decomposed (and weighed) with its holes capped.
+    solid = (coarse.vertices, coarse.faces) if coarse.closed else cap_holes(coarse.vertices, coarse.faces)
+    if not coarse.closed and solid is not None:
+        warn(f"the coarse mesh is open: its holes were capped ({len(solid[1]) - len(coarse.faces)} "
+             f"triangles, not stored) for the convex pieces and the mass properties")
+    elif not coarse.closed:
+        warn("the coarse mesh is open and its holes could not be capped: CoACD remeshes it "
+             "(slower, pieces approximate a shell) and mass properties fall back further")
+    # CoACD needs only the coarse mesh and releases the GIL, so it runs in a thread while
+    # xatlas and embree work: on the 650k CAD part that hides most of its 6.5 s. Its
+    # warnings are collected and emitted after it, so their order stays deterministic.
+    decomposer = _Background(lambda: decompose(coarse.vertices, coarse.faces, settings.decompose,
+                                               seed=settings.seed, solid=solid))
+    decomposer.start()
     with progress.stage("parameterize"):
         param = parameterize(coarse.vertices, coarse.faces, settings.parameterize)
     with progress.stage("bake", total=1.0) as update:
@@ -111,16 +127,11 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
                  f"found no surface along the normal within {settings.cage.max_ray_distance:g} of the "
                  f"bbox diagonal and use the closest point instead")
     with progress.stage("decompose"):
-        # An open coarse mesh is decomposed (and weighed) with its holes capped.
-        solid = (coarse.vertices, coarse.faces) if coarse.closed else cap_holes(coarse.vertices, coarse.faces)
-        if not coarse.closed and solid is not None:
-            warn(f"the coarse mesh is open: its holes were capped ({len(solid[1]) - len(coarse.faces)} "
-                 f"triangles, not stored) for the convex pieces and the mass properties")
-        elif not coarse.closed:
-            warn("the coarse mesh is open and its holes could not be capped: CoACD remeshes it "
-                 "(slower, pieces approximate a shell) and mass properties fall back further")
-        pieces = decompose(coarse.vertices, coarse.faces, settings.decompose,
-                           seed=settings.seed, warn=warn, solid=solid)
+        pieces = decomposer.result()
+        for w in pieces.warnings:
+            warn(w)
+    # The stage's own run time (it overlapped parameterize and bake), not the wait for it.
+    progress.timings["decompose"] = decomposer.seconds
     with progress.stage("mass"):
         solid_closed = solid is not None
         sv, sf = solid if solid is not None else (coarse.vertices, coarse.faces)
@@ -168,6 +179,37 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
                  "border_fallbacks": baked.border_fallbacks,
                  "simplify_scores": coarse.scores},
     }
+
+
+class _Background:
+    """Runs ``fn`` in a daemon thread; ``result()`` waits and returns its value or raises
+    its exception. Daemon: a Ctrl-C in the main thread ends the process without waiting
+    for it (nothing of it is written anywhere)."""
+
+    def __init__(self, fn):
+        self._fn = fn
+        self._value = None
+        self._error: BaseException | None = None
+        self.seconds = 0.0
+        self._thread = threading.Thread(target=self._run, name="hbake-decompose", daemon=True)
+
+    def _run(self):
+        t0 = time.perf_counter()
+        try:
+            self._value = self._fn()
+        except BaseException as exc:      # handed to the main thread by result()
+            self._error = exc
+        finally:
+            self.seconds = time.perf_counter() - t0
+
+    def start(self):
+        self._thread.start()
+
+    def result(self):
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._value
 
 
 def peak_rss_bytes() -> int:
