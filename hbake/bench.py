@@ -260,6 +260,8 @@ def format_table(rows: Sequence[BenchRow], info: dict) -> str:
                  + (f"Median of {runs} runs. " if runs > 1 else "One run. ")
                  + "total = the bake inside its process; process = the whole child "
                  "(interpreter start and imports included); peak RSS of that child. "
+                 "decompose runs alongside parameterize and bake, so the stage columns add "
+                 "up to more than total. "
                  + "Default settings" + "".join(
                      f"; {m}: " + ", ".join(f"{k} = {v}" for k, v in ov.items())
                      for m, ov in SHARED_OVERRIDES.items() if any(r.model == m for r in rows))
