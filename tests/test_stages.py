@@ -777,6 +777,41 @@ def test_output_checks(tmp_path, small_model):
         bake(small_model, tmp_path / "x.bundle")
 
 
+def test_decompose_runs_alongside_and_reports(tmp_path, small_model, monkeypatch):
+    """CoACD runs in a thread next to parameterize and bake: its failure reaches the caller
+    as the same error (CLI exit 7) with nothing written, and its warnings land in the
+    manifest after the bake's, in a fixed order, while it did run in another thread."""
+    import threading
+
+    import hbake.pipeline as pipeline
+    from hbake.errors import BakeFailedError
+
+    real = pipeline.decompose
+    seen = {}
+
+    def failing(*args, **kwargs):
+        seen["thread"] = threading.current_thread().name
+        raise BakeFailedError("convex decomposition (CoACD) failed: test")
+
+    monkeypatch.setattr(pipeline, "decompose", failing)
+    out = tmp_path / "x.hbundle"
+    with pytest.raises(BakeFailedError, match="CoACD"):
+        pipeline.bake(small_model, out)
+    assert seen["thread"] != threading.main_thread().name
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+    def warning(*args, **kwargs):
+        pieces = real(*args, **kwargs)
+        pieces.warnings.extend(["decompose warning 1", "decompose warning 2"])
+        return pieces
+
+    monkeypatch.setattr(pipeline, "decompose", warning)
+    report = pipeline.bake(small_model, out)
+    w = report["manifest"]["warnings"]
+    assert w.index("decompose warning 1") + 1 == w.index("decompose warning 2")
+    assert report["timings"]["decompose"] > 0
+
+
 def test_pipeline_bake_is_byte_deterministic(tmp_path, small_model):
     """Two bakes of the same input and settings give byte-identical bundles, and the
     manifest records the settings, seeds and libraries."""
