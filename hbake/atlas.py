@@ -104,8 +104,7 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
     fn = face_normals(V, F)
     corner = F[t_ids]                                         # (K, 3)
     inside = covered[ys, xs]
-    origin, b_clamped = _origins(V[corner], b, inside, texel_coordinates(uvs[t_ids], W, H),
-                                 np.stack([xs, ys], axis=1).astype(np.float64), texel_size)
+    origin, b_clamped = _origins(V[corner], b, inside, uvs, t_ids, xs, ys, W, H, texel_size)
     normal = np.einsum("kc,kcd->kd", b_clamped, vn[corner])
     length = np.linalg.norm(normal, axis=1)
     weak = length < 1e-6                                       # opposite normals cancel
@@ -156,7 +155,7 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
                       border_fallbacks=int((~hit & ~inside).sum()))
 
 
-def _origins(corners3, bary, inside, corners_px, q, texel_size):
+def _origins(corners3, bary, inside, uvs, t_ids, xs, ys, W, H, texel_size):
     """Coarse-surface points of the texels to bake, and the barycentric coordinates
     (clamped onto the triangle for border texels) that interpolate their normals.
 
@@ -171,14 +170,17 @@ def _origins(corners3, bary, inside, corners_px, q, texel_size):
     out = np.nonzero(~inside)[0]
     if len(out) == 0:
         return origin, clamped
-    a, bb, cc = corners_px[out, 0], corners_px[out, 1], corners_px[out, 2]
-    near = _closest_on_triangle_2d(q[out], a, bb, cc)
+    # only the border texels need their UV triangle in texel units (a fraction of all)
+    corners_px = texel_coordinates(uvs[t_ids[out]], W, H)
+    q = np.stack([xs[out], ys[out]], axis=1).astype(np.float64)
+    a, bb, cc = corners_px[:, 0], corners_px[:, 1], corners_px[:, 2]
+    near = _closest_on_triangle_2d(q, a, bb, cc)
     bn = np.clip(barycentric_2d(near, a, bb, cc), 0.0, 1.0)
     bn /= np.maximum(bn.sum(axis=1, keepdims=True), 1e-300)
     base = np.einsum("kc,kcd->kd", bn, corners3[out])
     step = origin[out] - base
     length = np.linalg.norm(step, axis=1)
-    cap = C.BORDER_STRETCH_TEXELS * texel_size * np.linalg.norm(q[out] - near, axis=1)
+    cap = C.BORDER_STRETCH_TEXELS * texel_size * np.linalg.norm(q - near, axis=1)
     scale = np.where(length > cap, cap / np.maximum(length, 1e-300), 1.0)
     origin[out] = base + scale[:, None] * step
     clamped[out] = bn
