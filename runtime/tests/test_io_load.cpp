@@ -198,15 +198,8 @@ TEST(IoAtlasSample, TexelCentresEdgesAndClamping) {
   EXPECT_EQ(a.sample(std::nanf(""), 0.75f), Eigen::Vector3f(0, 100, 200));   // NaN: clamped, no UB
 }
 
-// `hrt check` end to end: the binary sits next to hrt_tests in the build directory.
-std::string hrt_binary() {
-  char buf[4096];
-  const ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);
-  if (n <= 0) return "";
-  std::string self(buf, static_cast<size_t>(n));
-  return self.substr(0, self.rfind('/') + 1) + "hrt";
-}
-
+// `hrt check` end to end: the binary sits next to hrt_tests in the build directory
+// (hrt_test::hrt_binary).
 int run(const std::string& cmd, std::string* out) {
   FILE* p = ::popen(cmd.c_str(), "r");
   if (!p) return -1;

@@ -1,6 +1,11 @@
 // Test-side writer of bundle files (see test_io_writer.h).
 #include "test_io_writer.h"
 
+#include <fcntl.h>
+#include <poll.h>
+#include <spawn.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -21,6 +26,8 @@
 #include "io/bundle_io.h"
 
 namespace fs = std::filesystem;
+
+extern char** environ;
 
 namespace hrt_test {
 namespace {
@@ -335,5 +342,71 @@ void copy_dir(const std::string& from, const std::string& to) {
 }
 
 void remove_tree(const std::string& path) { fs::remove_all(path); }
+
+std::string hrt_binary() {
+  char buf[4096];
+  const ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);
+  if (n <= 0) return "";
+  const std::string self(buf, static_cast<size_t>(n));
+  return self.substr(0, self.rfind('/') + 1) + "hrt";
+}
+
+HrtRun run_hrt(const std::vector<std::string>& args, bool capture_stdout) {
+  HrtRun r;
+  const std::string bin = hrt_binary();
+  int out_fd[2], err_fd[2];
+  if (::pipe(out_fd) != 0) return r;
+  if (::pipe(err_fd) != 0) {
+    ::close(out_fd[0]);
+    ::close(out_fd[1]);
+    return r;
+  }
+  posix_spawn_file_actions_t fa;
+  posix_spawn_file_actions_init(&fa);
+  if (capture_stdout)
+    posix_spawn_file_actions_adddup2(&fa, out_fd[1], 1);
+  else
+    posix_spawn_file_actions_addopen(&fa, 1, "/dev/null", O_WRONLY, 0);
+  posix_spawn_file_actions_adddup2(&fa, err_fd[1], 2);
+  for (int fd : {out_fd[0], out_fd[1], err_fd[0], err_fd[1]}) posix_spawn_file_actions_addclose(&fa, fd);
+  std::vector<char*> argv{const_cast<char*>(bin.c_str())};
+  for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+  argv.push_back(nullptr);
+  pid_t pid = 0;
+  const int rc = posix_spawn(&pid, bin.c_str(), &fa, nullptr, argv.data(), environ);
+  posix_spawn_file_actions_destroy(&fa);
+  ::close(out_fd[1]);
+  ::close(err_fd[1]);
+  if (rc == 0) {
+    // Both pipes drained together, so a child filling one cannot block.
+    pollfd fds[2] = {{out_fd[0], POLLIN, 0}, {err_fd[0], POLLIN, 0}};
+    std::string* sinks[2] = {&r.out, &r.err};
+    int open_fds = 2;
+    while (open_fds > 0) {
+      if (::poll(fds, 2, -1) < 0) break;
+      for (int k = 0; k < 2; ++k) {
+        if (fds[k].fd < 0 || !(fds[k].revents & (POLLIN | POLLHUP | POLLERR))) continue;
+        char buf[65536];
+        const ssize_t n = ::read(fds[k].fd, buf, sizeof buf);
+        if (n > 0) {
+          sinks[k]->append(buf, static_cast<size_t>(n));
+        } else {
+          ::close(fds[k].fd);
+          fds[k].fd = -1;
+          --open_fds;
+        }
+      }
+    }
+    int status = 0;
+    struct rusage ru {};
+    ::wait4(pid, &status, 0, &ru);
+    r.status = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    r.max_rss_kb = ru.ru_maxrss;
+  } else {
+    ::close(out_fd[0]);
+    ::close(err_fd[0]);
+  }
+  return r;
+}
 
 }  // namespace hrt_test

@@ -82,6 +82,19 @@ Eigen::Vector4d reference_sample(const hrt::Atlas& a, float u, float v, Eigen::V
 // tests/golden), overridden by the environment variable of the same name.
 std::string golden_dir();
 
+// The `hrt` binary next to the test binary ("" when it cannot be found).
+std::string hrt_binary();
+// Runs `hrt args...` as a child process (no shell): its exit code (128 +
+// signal when killed), stdout (when asked; otherwise discarded), stderr and
+// peak resident set (wait4), so a crash or a memory blow-up of the command is
+// an assertion failure, not a failure of the test binary.
+struct HrtRun {
+  int status = -1;
+  std::string out, err;
+  long max_rss_kb = 0;
+};
+HrtRun run_hrt(const std::vector<std::string>& args, bool capture_stdout = false);
+
 // File helpers.
 std::string read_bytes(const std::string& path);
 void write_bytes(const std::string& path, const std::string& bytes);

@@ -443,6 +443,21 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
     vbegin[p + 1] += vbegin[p];
     fbegin[p + 1] += fbegin[p];
   }
+  // The piece limits bound the per-piece checks below (closedness sorts the
+  // edges, convexity tests every vertex against every face plane) and the
+  // later stages (FCL's convex pieces), whatever LoadOptions says: without
+  // them one piece of 8 MB took a minute to check.
+  for (size_t p = 0; p < np; ++p) {
+    const size_t pv = vbegin[p + 1] - vbegin[p], pf = fbegin[p + 1] - fbegin[p];
+    if (pv > io::kMaxPieceVertices) {
+      fail("piece " + s(p) + " has " + s(pv) + " vertices, more than the limit " + s(io::kMaxPieceVertices));
+    }
+    if (pf > io::kMaxPieceFaces) {
+      fail("piece " + s(p) + " has " + s(pf) + " faces, more than the limit " + s(io::kMaxPieceFaces) +
+           " (a convex piece of at most " + s(io::kMaxPieceVertices) + " vertices has at most " + s(io::kMaxPieceFaces) +
+           " triangles)");
+    }
+  }
   // The coarse mesh's bounding-box diagonal sets the convexity tolerance.
   Vec3 lo = Vec3::Constant(HUGE_VAL), hi = Vec3::Constant(-HUGE_VAL);
   for (const Vec3& v : model.vertices) {
@@ -556,14 +571,25 @@ Model load_bundle(const std::string& path, const LoadOptions& opts) {
   const std::string mlabel = join_path(path, "manifest.json");
   std::string mbytes;
   try {
-    mbytes = io::read_file(mlabel, mlabel);
+    mbytes = io::read_file(mlabel, mlabel, io::kMaxManifestBytes);
   } catch (const BundleError& e) {
     throw BundleError(BundleErrorClass::io, std::string(e.what()) == mlabel + ": missing file" ? mlabel + ": missing" : e.what());
   }
   Model model;
   model.path = path;
+  // nlohmann-json parses iteratively, but copies, dumps and the checker's
+  // messages recurse into values: the nesting depth is bounded while parsing.
+  const auto depth_guard = [&mlabel](int depth, nlohmann::json::parse_event_t event, nlohmann::json&) {
+    // `depth` counts the containers already open (0 at the top-level value).
+    if ((event == nlohmann::json::parse_event_t::object_start || event == nlohmann::json::parse_event_t::array_start) &&
+        depth >= io::kMaxJsonDepth) {
+      throw BundleError(BundleErrorClass::schema, mlabel + ": arrays and objects nested deeper than " +
+                                                      std::to_string(io::kMaxJsonDepth) + " levels");
+    }
+    return true;
+  };
   try {
-    model.manifest = nlohmann::json::parse(mbytes);
+    model.manifest = nlohmann::json::parse(mbytes, depth_guard);
   } catch (const nlohmann::json::exception& e) {
     std::string what = e.what();
     const size_t close = what.find("] ");
@@ -579,11 +605,16 @@ Model load_bundle(const std::string& path, const LoadOptions& opts) {
   // All three files exist, then size and hash file by file, then the contents.
   const FileEntry* entries[3] = {&info.coarse_mesh, &info.atlas, &info.pieces};
   static const char* kKeys[3] = {"coarse_mesh", "atlas", "pieces"};
+  // Sizes from stat first (class io: missing, not regular, over the limit),
+  // and the manifest's sizes (class hash) before a file is read, so a huge
+  // file is never read into memory.
+  static const uint64_t kLimits[3] = {io::kMaxPlyBytes, io::kMaxExrBytes, io::kMaxPlyBytes};
   std::string labels[3], bytes[3];
+  uint64_t sizes[3] = {0, 0, 0};
   for (int k = 0; k < 3; ++k) {
     labels[k] = join_path(path, entries[k]->path);
     try {
-      bytes[k] = io::read_file(labels[k], labels[k]);
+      sizes[k] = io::file_size(labels[k], labels[k], kLimits[k]);
     } catch (const BundleError& e) {
       if (std::string(e.what()) == labels[k] + ": missing file") {
         throw BundleError(BundleErrorClass::io, labels[k] + ": missing (" + kKeys[k] + " file named by the manifest)");
@@ -591,8 +622,12 @@ Model load_bundle(const std::string& path, const LoadOptions& opts) {
       throw;
     }
   }
-  if (opts.verify_hashes) {
-    for (int k = 0; k < 3; ++k) {
+  for (int k = 0; k < 3; ++k) {
+    if (opts.verify_hashes && sizes[k] != entries[k]->bytes) {
+      throw BundleError(BundleErrorClass::hash, labels[k] + ": " + s(sizes[k]) + " bytes, the manifest says " + s(entries[k]->bytes));
+    }
+    bytes[k] = io::read_file(labels[k], labels[k], kLimits[k]);
+    if (opts.verify_hashes) {
       if (bytes[k].size() != entries[k]->bytes) {
         throw BundleError(BundleErrorClass::hash,
                           labels[k] + ": " + s(bytes[k].size()) + " bytes, the manifest says " + s(entries[k]->bytes));
@@ -611,6 +646,14 @@ Model load_bundle(const std::string& path, const LoadOptions& opts) {
     throw BundleError(BundleErrorClass::atlas, mlabel + ": atlas is " + s(info.atlas_width) + "x" + s(info.atlas_height) +
                                                    " but files.atlas says " + s(info.atlas_spec.width) + "x" +
                                                    s(info.atlas_spec.height));
+  }
+  // The atlas limit before anything of the atlas's size is allocated (a
+  // manifest and header agreeing on 16384 x 16384 once allocated 4 GiB).
+  if (!(info.atlas_width <= static_cast<uint64_t>(io::kMaxAtlasSide) &&
+        info.atlas_height <= static_cast<uint64_t>(io::kMaxAtlasSide) &&
+        info.atlas_width * info.atlas_height <= static_cast<uint64_t>(io::kMaxAtlasTexels))) {
+    throw BundleError(BundleErrorClass::atlas, mlabel + ": atlas is " + s(info.atlas_width) + " x " + s(info.atlas_height) +
+                                                   " texels, more than the limit" + io::kAtlasLimitText);
   }
   model.atlas = io::read_atlas_exr(bytes[1], labels[1], info.atlas_spec, opts.decode_threads);
   if (opts.check_invariants) check_atlas_texels(model, info, labels[1]);

@@ -20,9 +20,29 @@ namespace hrt::io {
 // Lower-case hex SHA-256 of a byte string (OpenSSL's libcrypto).
 std::string sha256_hex(const std::string& bytes);
 
-// Reads a whole regular file; BundleError(io) when it is missing, not a
-// regular file or unreadable. `label` names the file in messages.
-std::string read_file(const std::string& path, const std::string& label);
+// Size of a regular file; BundleError(io) when it is missing, not a regular
+// file, unreadable or larger than max_bytes. `label` names the file in messages.
+uint64_t file_size(const std::string& path, const std::string& label, uint64_t max_bytes = UINT64_MAX);
+// Reads a whole regular file of at most max_bytes bytes (errors as file_size).
+std::string read_file(const std::string& path, const std::string& label, uint64_t max_bytes = UINT64_MAX);
+
+// Size limits of the bundle's files (docs/input-contract.md), checked before
+// a byte is read. A manifest written by hbake is a few KB; 1 MiB of JSON is
+// at most ~30 MB as a DOM. The atlas limit (256 MiB of float32 RGBA) bounds
+// an EXR, which is at most slightly larger than its raw texels; the PLYs'
+// counts are bounded by their bytes, and 1 GiB holds 28M coarse triangles.
+constexpr uint64_t kMaxManifestBytes = uint64_t{1} << 20;
+constexpr uint64_t kMaxPlyBytes = uint64_t{1} << 30;
+constexpr uint64_t kMaxExrBytes = uint64_t{512} << 20;
+// Nesting of arrays and objects in manifest.json (the top-level object is
+// level 1; hbake writes 4). Deeper input is refused while parsing.
+constexpr int kMaxJsonDepth = 64;
+// Vertices of one convex piece (shared with hbake), and so at most
+// 2 * 1024 - 4 faces: a closed convex triangulated polyhedron with V
+// vertices has 2 V - 4 faces (Euler). The convexity check costs
+// vertices x faces per piece, at most 41 plane tests per byte of pieces.ply.
+constexpr size_t kMaxPieceVertices = 1024;
+constexpr size_t kMaxPieceFaces = 2 * kMaxPieceVertices - 4;
 
 // coarse.ply: float32 positions, uint32 triangles, per-corner float32 UVs as
 // stored (u0 v0 u1 v1 u2 v2 per face).
@@ -47,6 +67,15 @@ struct PiecesPly {
 // Strict reader: exactly the header of the spec; counts, list lengths and file
 // length must match. Errors are class `pieces`.
 PiecesPly parse_pieces_ply(const std::string& bytes, const std::string& label);
+
+// The atlas limit shared by hbake and the runtime (docs/input-contract.md):
+// each side in [1, kMaxAtlasSide], at most kMaxAtlasTexels texels (256 MiB of
+// float32 RGBA), checked on the manifest and on the EXR header before OpenEXR
+// or the loader allocates anything of that size. A compressed EXR can expand
+// a thousandfold, so the file size bounds nothing.
+constexpr int64_t kMaxAtlasSide = 8192;
+constexpr int64_t kMaxAtlasTexels = int64_t{1} << 24;
+constexpr const char* kAtlasLimitText = " (each side at most 8192, at most 16777216 texels)";
 
 // What the manifest says the atlas must be.
 struct AtlasSpec {

@@ -8,11 +8,17 @@
 // 'integer'", ...) so that one message fragment identifies a problem in both
 // readers. Everything the schema requires is checked, plus: finite numbers
 // (nlohmann-json refuses NaN/Infinity and overflowing numbers anyway), file
-// names without "..", distinct file names, atlas sides <= 65536.
+// names without "..", distinct file names, atlas sides <= 65536 (the atlas
+// limit proper, 8192 and 2^24 texels, is class `atlas`: bundle.cpp), a
+// format_version of at most 32 characters.
+//
+// Nothing here recurses on the input: the parser bounds the nesting depth
+// (bundle.cpp) and py_repr stops at a fixed depth, so a hostile manifest
+// cannot overflow the stack (once a 26.5k-digit format_version did, in
+// std::regex_match, and a 35k-deep value of the wrong type in py_repr).
 #include <cmath>
 #include <functional>
 #include <limits>
-#include <regex>
 
 #include "io/bundle_io.h"
 
@@ -21,10 +27,17 @@ namespace {
 
 using nlohmann::json;
 
-constexpr uint64_t kMaxAtlasSide = 65536;
+constexpr uint64_t kMaxSchemaAtlasSide = 65536;  // keeps the sides within int
+
+// format_version: "MAJOR.MINOR", each a run of decimal digits; longer strings
+// are refused (Python's reader has no bound, but no real version needs more).
+constexpr size_t kMaxVersionChars = 32;
+
+// Nested values deeper than this are shown as [...] or {...} in messages.
+constexpr int kReprDepth = 8;
 
 // Python's repr() of a JSON value, as jsonschema's messages print it (short).
-std::string py_repr(const json& v) {
+std::string py_repr(const json& v, int depth = 0) {
   std::string out;
   if (v.is_string()) {
     const std::string s = v.get<std::string>();
@@ -35,14 +48,16 @@ std::string py_repr(const json& v) {
   } else if (v.is_null()) {
     out = "None";
   } else if (v.is_array()) {
+    if (depth >= kReprDepth) return "[...]";
     out = "[";
-    for (size_t i = 0; i < v.size() && out.size() < 80; ++i) out += (i ? ", " : "") + py_repr(v[i]);
+    for (size_t i = 0; i < v.size() && out.size() < 80; ++i) out += (i ? ", " : "") + py_repr(v[i], depth + 1);
     out += "]";
   } else if (v.is_object()) {
+    if (depth >= kReprDepth) return "{...}";
     out = "{";
     bool first = true;
     for (auto it = v.begin(); it != v.end() && out.size() < 80; ++it) {
-      out += (first ? "'" : ", '") + it.key() + "': " + py_repr(it.value());
+      out += (first ? "'" : ", '") + it.key() + "': " + py_repr(it.value(), depth + 1);
       first = false;
     }
     out += "}";
@@ -228,15 +243,21 @@ ManifestInfo check_manifest(const json& m, const std::string& label) {
                                           ", not 'hbundle' (not an hbundle)");
   }
   auto fv = m.find("format_version");
-  static const std::regex kVersion("^([0-9]+)\\.([0-9]+)$");
-  std::smatch match;
   const std::string version = (fv != m.end() && fv->is_string()) ? fv->get<std::string>() : std::string();
-  if (fv == m.end() || !fv->is_string() || !std::regex_match(version, match, kVersion)) {
-    c.fail(BundleErrorClass::version,
-           "format_version " + (fv == m.end() ? std::string("None") : py_repr(*fv)) + " is not MAJOR.MINOR");
+  // MAJOR.MINOR by hand (linear, bounded; std::regex recursed per character).
+  const size_t dot = version.find('.');
+  bool well_formed = fv != m.end() && fv->is_string() && version.size() <= kMaxVersionChars && dot != std::string::npos &&
+                     dot > 0 && dot + 1 < version.size();
+  for (size_t i = 0; well_formed && i < version.size(); ++i) well_formed = i == dot || (version[i] >= '0' && version[i] <= '9');
+  if (!well_formed) {
+    c.fail(BundleErrorClass::version, "format_version " + (fv == m.end() ? std::string("None") : py_repr(*fv)) +
+                                          " is not MAJOR.MINOR" +
+                                          (version.size() > kMaxVersionChars
+                                               ? " (at most " + std::to_string(kMaxVersionChars) + " characters)"
+                                               : std::string()));
   }
   // Compare the major number as a number ("01.0" is major 1, as in Python's int()).
-  std::string major = match[1].str();
+  std::string major = version.substr(0, dot);
   major.erase(0, std::min(major.find_first_not_of('0'), major.size() - 1));
   if (major != "1") {
     c.fail(BundleErrorClass::version, "unsupported major version " + version + " (this reader supports 1.x)");
@@ -291,8 +312,8 @@ ManifestInfo check_manifest(const json& m, const std::string& label) {
       info.atlas.path == "manifest.json" || info.pieces.path == "manifest.json") {
     c.bad("files", "two files have the same path (or one is manifest.json)");
   }
-  info.atlas_spec.width = static_cast<int>(c.integer(fatlas, "files/atlas", "width", 1, kMaxAtlasSide));
-  info.atlas_spec.height = static_cast<int>(c.integer(fatlas, "files/atlas", "height", 1, kMaxAtlasSide));
+  info.atlas_spec.width = static_cast<int>(c.integer(fatlas, "files/atlas", "width", 1, kMaxSchemaAtlasSide));
+  info.atlas_spec.height = static_cast<int>(c.integer(fatlas, "files/atlas", "height", 1, kMaxSchemaAtlasSide));
   {
     const json& ch = c.field(fatlas, "files/atlas", "channels");
     c.type(ch, "files/atlas/channels", "array");
@@ -327,8 +348,8 @@ ManifestInfo check_manifest(const json& m, const std::string& label) {
   info.map_tolerance = c.number(pieces, "pieces", "map_tolerance", 0.0);
 
   const json& atlas = c.object(m, "", "atlas");
-  info.atlas_width = c.count(atlas, "atlas", "width", 1, kMaxAtlasSide);
-  info.atlas_height = c.count(atlas, "atlas", "height", 1, kMaxAtlasSide);
+  info.atlas_width = c.count(atlas, "atlas", "width", 1, kMaxSchemaAtlasSide);
+  info.atlas_height = c.count(atlas, "atlas", "height", 1, kMaxSchemaAtlasSide);
   info.gutter = static_cast<int>(c.count(atlas, "atlas", "gutter", 1, 1 << 20));
   info.quality.texel_size = c.number(atlas, "atlas", "texel_size", 0.0, true);
   info.coverage = c.number(atlas, "atlas", "coverage", 0.0, false, 1.0);
