@@ -70,6 +70,39 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
     all.insert(all.end(), piece.vertices.begin(), piece.vertices.end());
   }
   g->bounds = bounds_of(all);
+  // Edges between non-coplanar faces, for the separating-axis depth. Pieces
+  // are closed and consistently wound (checked by the loader), so every
+  // directed edge (i, j) of a face has its reverse (j, i) in another face.
+  g->edges.resize(np);
+  g->piece_centroid.resize(np);
+  for (size_t p = 0; p < np; ++p) {
+    const ConvexPiece& piece = model.pieces[p];
+    std::vector<std::pair<uint64_t, Vec3>> half;  // key (i << 32 | j), outward normal of its face
+    half.reserve(piece.faces.size() * 3);
+    for (const Tri& f : piece.faces) {
+      const Vec3 nrm = (piece.vertices[f[1]] - piece.vertices[f[0]]).cross(piece.vertices[f[2]] - piece.vertices[f[0]]);
+      const double len = nrm.norm();
+      if (!(len > 0)) continue;
+      for (int c = 0; c < 3; ++c) {
+        const uint64_t i = f[static_cast<size_t>(c)], j = f[static_cast<size_t>((c + 1) % 3)];
+        half.emplace_back((i << 32) | j, nrm / len);
+      }
+    }
+    std::sort(half.begin(), half.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+    for (const auto& [key, n1] : half) {
+      const uint64_t i = key >> 32, j = key & 0xffffffffu;
+      if (i > j) continue;  // each undirected edge once, from its (i < j) half
+      const uint64_t rkey = (j << 32) | i;
+      auto it = std::lower_bound(half.begin(), half.end(), rkey,
+                                 [](const auto& x, uint64_t k) { return x.first < k; });
+      if (it == half.end() || it->first != rkey) continue;
+      if (n1.dot(it->second) > 1.0 - 1e-12) continue;  // coplanar: not an edge of the hull
+      g->edges[p].push_back({piece.vertices[i], piece.vertices[j], n1, it->second});
+    }
+    Vec3 c = Vec3::Zero();
+    for (const Vec3& x : piece.vertices) c += x;
+    g->piece_centroid[p] = c / static_cast<double>(std::max<size_t>(1, piece.vertices.size()));
+  }
   g->face_spheres.reserve(model.faces.size());
   for (const Tri& f : model.faces) {
     const Vec3 c = (model.vertices[f[0]] + model.vertices[f[1]] + model.vertices[f[2]]) / 3.0;
@@ -132,27 +165,51 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
   g->scale = 2.0 * g->bounds.half.norm();
   g->adjacency_tolerance = 1e-3 * g->scale;
 
-  // Adjacency: pieces whose hulls are within adjacency_tolerance (CoACD's
-  // pieces of one part meet along their cut planes at distance ~0).
+  // Adjacency, from the bundle alone (no narrow phase: FCL 0.7's libccd EPA
+  // aborts the process on an assertion for some touching piece pairs, and
+  // an assertion cannot be caught; runtime/tests/data/epa_abort_pair.json).
+  // Pieces p, q are adjacent when
+  //   (a) their coarse-face lists share a coarse vertex (CoACD cuts the
+  //       surface between them, so the triangles on either side of a cut, or
+  //       one cut triangle listed by both, share vertices), or
+  //   (b) a face plane of one is a touching separating plane of the other:
+  //       all of q's vertices lie on or outside a face plane of p within
+  //       adjacency_tolerance and one lies on it (pieces meeting along an
+  //       interior cut face, e.g. an interior piece that lists no triangle),
+  //       with their boxes within the tolerance.
   std::vector<std::vector<int>> adj(np);
-  fcl::DistanceRequestd req(true, true);
-  req.distance_tolerance = 1e-9 * g->scale;
+  {
+    // (a): per coarse vertex, the pieces whose faces use it.
+    std::vector<std::vector<int>> vertex_pieces(model.vertices.size());
+    for (size_t p = 0; p < np; ++p)
+      for (uint32_t f : model.pieces[p].coarse_faces)
+        for (uint32_t vi : model.faces[f]) {
+          auto& list = vertex_pieces[vi];
+          if (list.empty() || list.back() != static_cast<int>(p)) list.push_back(static_cast<int>(p));
+        }
+    for (const auto& list : vertex_pieces)
+      for (size_t i = 0; i < list.size(); ++i)
+        for (size_t j = i + 1; j < list.size(); ++j) {
+          adj[static_cast<size_t>(list[i])].push_back(list[j]);
+          adj[static_cast<size_t>(list[j])].push_back(list[i]);
+        }
+  }
+  const double tol = g->adjacency_tolerance;
+  auto touching_plane = [&](size_t p, size_t q) {
+    for (const Eigen::Vector4d& pl : g->planes[p]) {
+      double lo = std::numeric_limits<double>::infinity();
+      for (const Vec3& x : model.pieces[q].vertices) lo = std::min(lo, pl.head<3>().dot(x) - pl[3]);
+      if (lo >= -tol && lo <= tol) return true;
+    }
+    return false;
+  };
   for (size_t p = 0; p < np; ++p) {
     for (size_t q = p + 1; q < np; ++q) {
       const Bounds& bp = g->piece_bounds[p];
       const Bounds& bq = g->piece_bounds[q];
       Vec3 gap = ((bp.center - bq.center).cwiseAbs() - bp.half - bq.half);
-      if (gap.maxCoeff() > g->adjacency_tolerance) continue;
-      fcl::DistanceResultd res;
-      bool near = false;
-      try {
-        fcl::distance(g->convex[p].get(), fcl::Transform3d::Identity(), g->convex[q].get(),
-                      fcl::Transform3d::Identity(), req, res);
-        near = res.min_distance <= g->adjacency_tolerance;
-      } catch (const std::exception&) {
-        near = true;  // FCL fails on degenerate touching configurations: they touch
-      }
-      if (near) {
+      if (gap.maxCoeff() > tol) continue;
+      if (touching_plane(p, q) || touching_plane(q, p)) {
         adj[p].push_back(static_cast<int>(q));
         adj[q].push_back(static_cast<int>(p));
       }
@@ -161,6 +218,7 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
   g->adj_offset.assign(np + 1, 0);
   for (size_t p = 0; p < np; ++p) {
     std::sort(adj[p].begin(), adj[p].end());
+    adj[p].erase(std::unique(adj[p].begin(), adj[p].end()), adj[p].end());
     g->adj_offset[p + 1] = g->adj_offset[p] + static_cast<int>(adj[p].size());
     g->adj_list.insert(g->adj_list.end(), adj[p].begin(), adj[p].end());
   }
@@ -204,10 +262,148 @@ World::World(const std::vector<const Model*>& objects) {
 
 World::~World() = default;
 
+namespace {
+
+// The face of B's piece whose plane lies closest to p_b (the face p_b lies
+// on); A penetrates B against that face's outward normal.
+bool nearest_face_normal(const ModelGeometry& gb, int pb, const Vec3& p_b, Vec3& n) {
+  const auto& planes = gb.planes[static_cast<size_t>(pb)];
+  double best = -std::numeric_limits<double>::infinity();
+  n = Vec3::UnitZ();
+  for (const Eigen::Vector4d& pl : planes) {
+    double s = pl.head<3>().dot(p_b) - pl[3];
+    if (s > best) {
+      best = s;
+      n = -pl.head<3>();
+    }
+  }
+  return true;
+}
+
+// Penetration depth of two convex pieces by the separating-axis theorem,
+// which is exact for convex polytopes: the depth (the shortest translation of
+// A that separates them) is the smallest overlap over the face normals of the
+// Minkowski difference A - B, i.e. A's face normals, B's (reversed), and the
+// cross products of edge pairs whose arcs on the Gauss map intersect
+// (Gregorius, "The Separating Axis Test between Convex Polyhedra", GDC 2013).
+// No iteration, so no convergence or degeneracy failure; the cost is
+// O(F_a V_b + F_b V_a + E_a E_b), a few microseconds for CoACD pieces of a
+// few dozen vertices (README: narrow-phase benchmark). Everything in B's
+// frame. Sets d = -depth (d > 0 when an axis separates them by d: touching
+// within GJK's tolerance), n from A into B, and p_a, p_b on the deepest
+// features (p_a - p_b = depth n).
+bool sat_depth(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a, const ModelGeometry& gb,
+               int pb, double eps, double& d, Vec3& p_a, Vec3& p_b, Vec3& n) {
+  const auto ia = static_cast<size_t>(pa), ib = static_cast<size_t>(pb);
+  const std::vector<Vec3>& va = ga.model->pieces[ia].vertices;  // A's frame
+  const std::vector<Vec3>& vb = gb.model->pieces[ib].vertices;  // B's frame
+  const Mat3 R = b_from_a.linear();
+  const Vec3 t = b_from_a.translation();
+  double best = std::numeric_limits<double>::infinity();
+  Vec3 axis = Vec3::UnitZ();
+  // A's faces: A moves into B along its outward normal m (B frame R m);
+  // overlap = A's plane offset - B's lowest vertex along it.
+  for (const Eigen::Vector4d& pl : ga.planes[ia]) {
+    const Vec3 m = R * pl.head<3>();
+    const double top = pl[3] + m.dot(t);
+    double lo = std::numeric_limits<double>::infinity();
+    for (const Vec3& x : vb) lo = std::min(lo, m.dot(x));
+    if (top - lo < best) {
+      best = top - lo;
+      axis = m;
+    }
+  }
+  // B's faces (outward m): A moves into B along -m; overlap = B's offset
+  // minus A's lowest vertex along m (A's vertices via R^T m, in A's frame).
+  for (const Eigen::Vector4d& pl : gb.planes[ib]) {
+    const Vec3 m = pl.head<3>();
+    const Vec3 ml = R.transpose() * m;
+    const double off = m.dot(t);
+    double lo = std::numeric_limits<double>::infinity();
+    for (const Vec3& x : va) lo = std::min(lo, ml.dot(x));
+    const double o = pl[3] - (lo + off);
+    if (o < best) {
+      best = o;
+      axis = -m;
+    }
+  }
+  // Edge pairs that form a face of A - B: arcs (n1a, n2a) and (-n1b, -n2b)
+  // intersect on the unit sphere.
+  for (const ModelGeometry::PieceEdge& ea : ga.edges[ia]) {
+    const Vec3 a1 = R * ea.n1, a2 = R * ea.n2;
+    const Vec3 pa0 = R * ea.a + t;
+    const Vec3 da = R * (ea.b - ea.a);
+    const Vec3 bxa = a2.cross(a1);
+    for (const ModelGeometry::PieceEdge& eb : gb.edges[ib]) {
+      const Vec3 c = -eb.n1, dd = -eb.n2;
+      const double cba = c.dot(bxa), dba = dd.dot(bxa);
+      if (!(cba * dba < 0)) continue;
+      const Vec3 dxc = dd.cross(c);
+      const double adc = a1.dot(dxc), bdc = a2.dot(dxc);
+      if (!(adc * bdc < 0) || !(cba * bdc > 0)) continue;
+      Vec3 u = da.cross(eb.b - eb.a);
+      const double len = u.norm();
+      if (!(len > 1e-12 * da.norm() * (eb.b - eb.a).norm())) continue;  // parallel edges
+      u /= len;
+      if (u.dot(a1 + a2) < 0) u = -u;  // outward from A at its edge
+      const double o = u.dot(pa0 - eb.a);
+      if (o < best) {
+        best = o;
+        axis = u;
+      }
+    }
+  }
+  if (!std::isfinite(best)) return false;
+  // The deepest features along the axis: A's vertices within eps of its
+  // highest, B's within eps of its lowest; the contact point lies over the
+  // smaller of the two (a vertex or an edge inside a face), or midway.
+  double amax = -std::numeric_limits<double>::infinity(), bmin = std::numeric_limits<double>::infinity();
+  const Vec3 axis_a = R.transpose() * axis;
+  for (const Vec3& x : va) amax = std::max(amax, axis_a.dot(x));
+  amax += axis.dot(t);
+  for (const Vec3& x : vb) bmin = std::min(bmin, axis.dot(x));
+  Vec3 ca = Vec3::Zero(), cb = Vec3::Zero();
+  int na = 0, nb = 0;
+  for (const Vec3& x : va) {
+    const Vec3 y = R * x + t;
+    if (axis.dot(y) >= amax - eps) {
+      ca += y;
+      ++na;
+    }
+  }
+  for (const Vec3& x : vb)
+    if (axis.dot(x) <= bmin + eps) {
+      cb += x;
+      ++nb;
+    }
+  ca /= std::max(na, 1);
+  cb /= std::max(nb, 1);
+  const Vec3 lateral = na < nb ? ca : nb < na ? cb : Vec3(0.5 * (ca + cb));
+  const Vec3 l0 = lateral - axis.dot(lateral) * axis;
+  p_a = l0 + amax * axis;
+  p_b = l0 + bmin * axis;
+  d = -best;
+  n = axis;
+  return p_a.allFinite() && p_b.allFinite() && std::isfinite(d);
+}
+
+}  // namespace
+
 bool piece_distance(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a, const ModelGeometry& gb,
                     int pb, double distance_tolerance, double& d, Vec3& p_a, Vec3& p_b, Vec3& n,
                     bool& fallback) {
-  fcl::DistanceRequestd req(true, true);
+  // Two stages, neither of which reaches an EPA:
+  //  1. FCL's GJK distance without signed distance (GST_LIBCCD, the same GJK
+  //     as before for separated pieces); it stops at "intersecting".
+  //  2. Only for intersecting pieces: the separating-axis depth (sat_depth).
+  // Why not FCL's or libccd's EPA: FCL 0.7's (its libccd extension, used for
+  // signed distance) aborts the process on an assertion for some piece pairs
+  // (isOutsidePolytopeFace; runtime/tests/data/epa_abort_pair.json), and an
+  // assertion cannot be caught; FCL's own (GST_INDEP) returns InvalidHull and
+  // depths 10-100 times too small on that pair's poses, and libccd's
+  // ccdGJKPenetration underestimates them by up to 10 % (measured in
+  // test_narrow_phase.cpp's development against the libccd-extension EPA).
+  fcl::DistanceRequestd req(true, false);
   req.distance_tolerance = distance_tolerance;
   fcl::DistanceResultd res;
   fcl::Transform3d tf_a = fcl::Transform3d::Identity();
@@ -219,9 +415,15 @@ bool piece_distance(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_
   } catch (const std::exception&) {
     return false;
   }
-  d = res.min_distance;
-  p_a = res.nearest_points[0];
-  p_b = res.nearest_points[1];
+  if (res.min_distance > 0) {
+    d = res.min_distance;
+    p_a = res.nearest_points[0];
+    p_b = res.nearest_points[1];
+  } else {
+    // Intersecting (or touching within GJK's tolerance): exact depth.
+    fallback = false;
+    return sat_depth(ga, pa, b_from_a, gb, pb, distance_tolerance, d, p_a, p_b, n);
+  }
   if (!std::isfinite(d) || !p_a.allFinite() || !p_b.allFinite()) return false;
   // Separated: A moves towards B along p_b - p_a. Overlapping: p_a is A's
   // deepest point inside B and p_b B's deepest point inside A, so A
@@ -235,19 +437,7 @@ bool piece_distance(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_
     n = dir / len;
     return true;
   }
-  // Fallback: the face of B's piece whose plane lies closest to p_b (the face
-  // p_b lies on); A penetrates B against that face's outward normal.
-  const auto& planes = gb.planes[static_cast<size_t>(pb)];
-  double best = -std::numeric_limits<double>::infinity();
-  n = Vec3::UnitZ();
-  for (const Eigen::Vector4d& pl : planes) {
-    double s = pl.head<3>().dot(p_b) - pl[3];
-    if (s > best) {
-      best = s;
-      n = -pl.head<3>();
-    }
-  }
-  return true;
+  return nearest_face_normal(gb, pb, p_b, n);
 }
 
 }  // namespace hrt::collision

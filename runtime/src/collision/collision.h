@@ -8,8 +8,10 @@
 //
 // Per frame and per B: object-level sphere culling, then for each piece of A
 // an AABB query (A's piece box in B's frame, inflated by the tolerance) down
-// B's tree, a bounding-sphere lower bound, and an FCL signed-distance query
-// (GJK, EPA when the coarse pieces overlap) for the survivors.
+// B's tree, a bounding-sphere lower bound, and a signed distance with FCL's
+// own GJK (and its EPA when the coarse pieces overlap) for the survivors.
+// libccd (FCL's default GST_LIBCCD solver) is never reached: its EPA aborts
+// on an assertion for some piece pairs.
 #pragma once
 
 #include <memory>
@@ -37,8 +39,10 @@ struct ModelGeometry {
   std::vector<Bounds> piece_bounds;
   Bounds bounds;            // all pieces together
   double scale = 0.0;       // bbox diagonal of the pieces, m
-  // Piece adjacency (CSR): pieces p, q are adjacent when their coarse-face
-  // lists share a coarse vertex or their hulls are within adjacency_tolerance.
+  // Piece adjacency (CSR), from the bundle alone: pieces p, q are adjacent
+  // when their coarse-face lists share a coarse vertex, or when a face plane
+  // of one touches the other from outside within adjacency_tolerance (pieces
+  // meeting along a cut face) with their boxes that close.
   std::vector<int> adj_offset;  // size pieces + 1
   std::vector<int> adj_list;    // sorted per piece
   double adjacency_tolerance = 0.0;
@@ -65,6 +69,15 @@ struct ModelGeometry {
   std::vector<uint32_t> face_order;
   // Outward face planes (nx, ny, nz, d: n . x = d) per piece, object frame.
   std::vector<std::vector<Eigen::Vector4d>> planes;
+  // Edges of each piece between two faces that are not coplanar (the only
+  // edges that can form a face of a Minkowski difference), with the outward
+  // unit normals of the two faces: the separating-axis depth (piece_distance).
+  struct PieceEdge {
+    Vec3 a, b;    // end points, object frame
+    Vec3 n1, n2;  // outward normals of the two faces that share the edge
+  };
+  std::vector<std::vector<PieceEdge>> edges;
+  std::vector<Vec3> piece_centroid;  // mean of each piece's vertices
   // B side: the broad-phase tree of the pieces in the object frame (built and
   // balanced by FCL's DynamicAABBTreeCollisionManager; detect_pairs descends
   // its tree with A's piece boxes).
@@ -92,7 +105,9 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
 // Signed distance between piece pa of A (placed by b_from_a in B's frame) and
 // piece pb of B, in B's frame. Fills d, p_a, p_b (B frame) and n (B frame,
 // from A into B); returns false when FCL failed. fallback is set when the
-// points coincided and n came from B's face planes.
+// points coincided and n came from B's face planes. Separated pieces: FCL's
+// GJK distance; intersecting ones: the exact separating-axis penetration
+// depth (see collision.cpp).
 bool piece_distance(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a,
                     const ModelGeometry& gb, int pb, double distance_tolerance, double& d, Vec3& p_a,
                     Vec3& p_b, Vec3& n, bool& fallback);
