@@ -33,6 +33,7 @@
 #include <nlohmann/json.hpp>
 
 #include "commands.h"
+#include "finite_json.h"
 #include "hrt/scene.h"
 #include "scene_cli.h"
 
@@ -50,10 +51,20 @@ struct BenchOptions {
   int passes = 3;                        // back-and-forth passes; the first is a warm-up
   std::vector<int> resolutions{32, 50, 64, 128};
   std::vector<int> copies{1, 2, 4, 7, 8, 12, 16};
+  // The lists as given (comma-separated, possibly over several arguments);
+  // split here, not by CLI11, which silently drops empty items ("32,,64").
+  std::vector<std::string> resolutions_arg, copies_arg;
   SceneFlags scene;
   bool json = false;
 };
 
+// Upper bounds of the sweep's size (frames x passes records are kept).
+constexpr int kMaxFrames = 1000000;
+constexpr int kMaxPasses = 100;
+// --settle-depth: a penetration of more than 1 m is not a contact.
+constexpr double kMaxSettleDepth = 1.0;
+
+// NaN = no sample (printed "nan" in the tables, null in --json).
 double median(std::vector<double> v) {
   if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
   std::sort(v.begin(), v.end());
@@ -182,14 +193,18 @@ Summary summarize(const std::vector<FrameRecord>& r) {
   return s;
 }
 
+// A median in --json: null when there was no sample (NaN), explicitly, so the
+// output's finiteness check below flags only real non-finite values.
+nlohmann::json num_or_null(double x) { return std::isnan(x) ? nlohmann::json(nullptr) : nlohmann::json(x); }
+
 nlohmann::json summary_json(const Summary& s) {
   return {{"frames", s.frames},
-          {"collision_us", s.collision},
-          {"clustering_us", s.clustering},
-          {"force_us", s.force},
-          {"total_us", s.total},
-          {"collision_per_pair_us", s.per_pair},
-          {"force_per_patch_us", s.per_patch},
+          {"collision_us", num_or_null(s.collision)},
+          {"clustering_us", num_or_null(s.clustering)},
+          {"force_us", num_or_null(s.force)},
+          {"total_us", num_or_null(s.total)},
+          {"collision_per_pair_us", num_or_null(s.per_pair)},
+          {"force_per_patch_us", num_or_null(s.per_patch)},
           {"pairs", {{"min", s.pairs_min}, {"median", s.pairs_med}, {"max", s.pairs_max}}},
           {"patches", {{"min", s.patches_min}, {"median", s.patches_med}, {"max", s.patches_max}}}};
 }
@@ -202,7 +217,28 @@ std::string pose_args(const hrt::Pose& p) {
   return buf;
 }
 
-void run_bench(const BenchOptions& o) {
+// "32,50,64" (and "32 50,64" over several arguments) -> integers; every item
+// a strict decimal integer.
+std::vector<int> int_list(const std::vector<std::string>& args, const std::string& flag) {
+  std::vector<int> out;
+  for (const std::string& a : args) {
+    size_t start = 0;
+    for (;;) {
+      const size_t comma = a.find(',', start);
+      const std::string item = a.substr(start, comma == std::string::npos ? std::string::npos : comma - start);
+      const std::string err = integer_error(item);
+      if (!err.empty()) throw Exit(kUsage, flag + ": " + err + " in '" + a + "'");
+      out.push_back(std::stoi(item));
+      if (comma == std::string::npos) break;
+      start = comma + 1;
+    }
+  }
+  return out;
+}
+
+void run_bench(BenchOptions o) {
+  if (!o.resolutions_arg.empty()) o.resolutions = int_list(o.resolutions_arg, "--resolutions");
+  if (!o.copies_arg.empty()) o.copies = int_list(o.copies_arg, "--copies");
   if (o.a.empty() || o.b.empty())
     throw Exit(kUsage,
                "bench needs --a and --b bundles in contact (examples/bench_runtime.sh bakes a rasp and a CAD part "
@@ -213,8 +249,14 @@ void run_bench(const BenchOptions& o) {
   for (int k : o.copies)
     if (k < 1 || k > 256) throw Exit(kUsage, "--copies: each count must be between 1 and 256");
   if (o.frames < 1 || o.passes < 1) throw Exit(kUsage, "--frames and --passes must be at least 1");
+  if (o.frames > kMaxFrames) throw Exit(kUsage, "--frames: at most " + std::to_string(kMaxFrames));
+  if (o.passes > kMaxPasses) throw Exit(kUsage, "--passes: at most " + std::to_string(kMaxPasses));
   if (!o.settle.empty() && o.settle.size() != 3) throw Exit(kUsage, "--settle: expected 3 numbers");
   if (o.path.size() != 3) throw Exit(kUsage, "--path: expected 3 numbers");
+  if (!(hrt::Vec3(o.path[0], o.path[1], o.path[2]).stableNorm() <= kMaxPosition))
+    throw Exit(kUsage, "--path: its length must be at most " + fmt_g(kMaxPosition) + " m");
+  if (!(o.settle_depth > 0 && o.settle_depth <= kMaxSettleDepth))
+    throw Exit(kUsage, "--settle-depth: must be in (0, " + fmt_g(kMaxSettleDepth) + "] m, got " + fmt_g(o.settle_depth));
   hrt::Pose pose_a = parse_pose(o.pose_a, "--pose-a");
   const hrt::Pose pose_b = parse_pose(o.pose_b, "--pose-b");
   const hrt::Vec3 path(o.path[0], o.path[1], o.path[2]);
@@ -310,8 +352,8 @@ void run_bench(const BenchOptions& o) {
       auto it = per_n.find(n);
       const double tot = it == per_n.end() ? NAN : median(it->second);
       const double frc = it == per_n.end() ? NAN : median(bins_force[k][n]);
-      jb["total_us"][std::to_string(n)] = tot;
-      jb["force_us"][std::to_string(n)] = frc;
+      jb["total_us"][std::to_string(n)] = num_or_null(tot);
+      jb["force_us"][std::to_string(n)] = num_or_null(frc);
       if (!o.json) std::printf("  %8.1f (%7.1f)", tot, frc);
     }
     if (!o.json) std::printf("\n");
@@ -357,7 +399,11 @@ void run_bench(const BenchOptions& o) {
     if (!o.json) std::printf("%4d %7.0f %8.0f%s\n", k, first.pairs_med, first.patches_med, line.c_str());
   }
   js["copies"] = jcopies;
-  if (o.json) std::printf("%s\n", js.dump(2, ' ', false, nlohmann::json::error_handler_t::replace).c_str());
+  if (o.json) {
+    const std::string bad = first_non_finite(js);
+    if (!bad.empty()) throw Exit(kInternal, "internal error: non-finite value at '" + bad + "' of the result (please report)");
+    std::printf("%s\n", js.dump(2, ' ', false, nlohmann::json::error_handler_t::replace).c_str());
+  }
 }
 
 }  // namespace
@@ -369,19 +415,31 @@ void register_bench(CLI::App& app) {
                                               "scraping an object, per grid resolution and patch count");
   cmd->add_option("--a", o->a, "probe bundle A (e.g. a rasp)");
   cmd->add_option("--b", o->b, "object bundle B (e.g. a CAD part)");
-  cmd->add_option("--pose-a", o->pose_a, "start pose of A: x y z qx qy qz qw")->expected(7);
-  cmd->add_option("--pose-b", o->pose_b, "pose of B: x y z qx qy qz qw")->expected(7)->capture_default_str();
+  cmd->add_option("--pose-a", o->pose_a, "start pose of A: x y z qx qy qz qw")->expected(7)->check(RealNumber());
+  cmd->add_option("--pose-b", o->pose_b, "pose of B: x y z qx qy qz qw")
+      ->expected(7)
+      ->check(RealNumber())
+      ->capture_default_str();
   cmd->add_option("--settle", o->settle, "first move A from --pose-a along this direction until it penetrates B")
-      ->expected(3);
-  cmd->add_option("--settle-depth", o->settle_depth, "deepest patch penetration to settle at, m")
+      ->expected(3)
+      ->check(RealNumber());
+  cmd->add_option("--settle-depth", o->settle_depth, "deepest patch penetration to settle at, m (at most 1)")
+      ->check(RealNumber())
       ->capture_default_str();
-  cmd->add_option("--path", o->path, "translation of A over one pass of the sweep, m")->expected(3)->capture_default_str();
-  cmd->add_option("--frames", o->frames, "poses (one frame each) per pass along the path")->capture_default_str();
-  cmd->add_option("--passes", o->passes, "back-and-forth passes; the first is a warm-up")->capture_default_str();
-  cmd->add_option("--resolutions", o->resolutions, "grid resolutions N to time")->delimiter(',')->capture_default_str();
-  cmd->add_option("--copies", o->copies, "numbers K of copies of B for the patch-count table")
-      ->delimiter(',')
+  cmd->add_option("--path", o->path, "translation of A over one pass of the sweep, m (length at most 1e4)")
+      ->expected(3)
+      ->check(RealNumber())
       ->capture_default_str();
+  cmd->add_option("--frames", o->frames, "poses (one frame each) per pass along the path (at most 1e6)")
+      ->check(Integer())
+      ->capture_default_str();
+  cmd->add_option("--passes", o->passes, "back-and-forth passes; the first is a warm-up (at most 100)")
+      ->check(Integer())
+      ->capture_default_str();
+  cmd->add_option("--resolutions", o->resolutions_arg, "grid resolutions N to time (comma-separated)")
+      ->default_str("32,50,64,128");
+  cmd->add_option("--copies", o->copies_arg, "numbers K of copies of B for the patch-count table (comma-separated)")
+      ->default_str("1,2,4,7,8,12,16");
   o->scene.add_to(cmd, false);
   cmd->add_flag("--json", o->json, "print the results as JSON");
   cmd->callback([o]() { run_bench(*o); });

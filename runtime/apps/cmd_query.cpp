@@ -14,6 +14,7 @@
 #include <nlohmann/json.hpp>
 
 #include "commands.h"
+#include "finite_json.h"
 #include "hrt/scene.h"
 #include "scene_cli.h"
 
@@ -189,16 +190,19 @@ void register_query(CLI::App& app) {
   cmd->add_option("bundles", o->bundles, "A.hbundle (the probe) followed by one or more B bundles")
       ->required()
       ->expected(2, 1 << 16);
-  cmd->add_option("--pose-a", o->pose_a, "pose of A: x y z qx qy qz qw (m, unit quaternion)")
+  cmd->add_option("--pose-a", o->pose_a, "pose of A: x y z qx qy qz qw (m, |x y z| <= 1e4, unit quaternion)")
       ->required()
-      ->expected(7);
+      ->expected(7)
+      ->check(RealNumber());
   cmd->add_option("--pose-b", o->pose_b, "pose of each B in order: x y z qx qy qz qw (repeat the flag per B)")
       ->required()
       ->expected(7)
-      ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
+      ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll)
+      ->check(RealNumber());
   o->scene.add_to(cmd);
   cmd->add_option("--repeat", o->repeat, "run this many frames at the poses; timings are their median")
       ->capture_default_str()
+      ->check(Integer())
       ->check(CLI::Range(1, 1000000));
   cmd->add_flag("--json", o->json, "print the result as JSON (layout: docs/hrt-query-json.md)");
   cmd->callback([o]() {
@@ -239,9 +243,13 @@ void register_query(CLI::App& app) {
     t.clustering_us = median(tk);
     t.force_us = median(tf);
     t.total_us = median(tt);
+    // Both outputs print the same values: a NaN or infinity among them is a
+    // bug upstream (nlohmann-json would print it as null), never a result.
+    const Json doc = query_json(*scene, st, *o, t, warnings);
+    const std::string bad = first_non_finite(doc);
+    if (!bad.empty()) throw Exit(kInternal, "internal error: non-finite value at '" + bad + "' of the result (please report)");
     if (o->json) {
-      std::printf("%s\n",
-                  query_json(*scene, st, *o, t, warnings).dump(2, ' ', false, Json::error_handler_t::replace).c_str());
+      std::printf("%s\n", doc.dump(2, ' ', false, Json::error_handler_t::replace).c_str());
     } else {
       print_table(*scene, st, *o, t, warnings);
     }
