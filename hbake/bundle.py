@@ -22,14 +22,19 @@ import os
 import re
 import secrets
 import shutil
+import stat
+import struct
 import sys
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from . import constants as C
 from .errors import BakeFailedError, BundleError, OutputExistsError, OutputUnwritableError
+from .fileio import read_regular
 
 __all__ = [
     "FORMAT_NAME", "FORMAT_VERSION", "FORMAT_MAJOR", "FILE_NAMES", "ERROR_CLASSES",
@@ -70,6 +75,12 @@ CONVEX_ABS_TOL = 1e-9
 
 # At most this many individual examples per kind of problem; the rest are counted.
 _MAX_EXAMPLES = 3
+
+#: manifest.json is refused past this size (hbake writes about 10 kB) and this nesting
+#: depth (hbake's deepest field is 4 levels down; Python's json, jsonschema and repr()
+#: recurse once per level, so an unbounded depth ends in a RecursionError).
+MAX_MANIFEST_BYTES = 16 << 20
+MAX_JSON_DEPTH = 64
 
 _COARSE_HEADER = (
     "ply\n"
@@ -190,6 +201,12 @@ def load_schema() -> dict:
     return _SCHEMA_CACHE
 
 
+def _atlas_size_ok(w: int, h: int) -> bool:
+    """The shared atlas limit (docs/input-contract.md)."""
+    return (1 <= w <= C.MAX_ATLAS_SIDE and 1 <= h <= C.MAX_ATLAS_SIDE
+            and w * h <= C.MAX_ATLAS_TEXELS)
+
+
 def convexity_tolerance(bbox_diagonal: float) -> float:
     """How far (m) a piece vertex may lie in front of a face plane of its piece."""
     return CONVEX_REL_TOL * float(bbox_diagonal) + CONVEX_ABS_TOL
@@ -201,6 +218,27 @@ def _bbox_diagonal(points: np.ndarray) -> float:
     if len(pts) == 0:
         return 0.0
     return float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+
+
+def _short(value: Any, limit: int = 60, quote: bool = True) -> str:
+    """repr (or str) of a value from a file, cut to ``limit`` characters for a message."""
+    text = repr(value) if quote else str(value)
+    return text if len(text) <= limit else f"{text[:limit - 3]}... ({len(text):,} characters)"
+
+
+def _json_depth(value: Any) -> int:
+    """Nesting depth of parsed JSON (iterative: no recursion to overflow)."""
+    depth, stack = 0, [(value, 1)]
+    while stack:
+        v, d = stack.pop()
+        if isinstance(v, dict):
+            v = list(v.values())
+        if isinstance(v, list):
+            depth = max(depth, d)
+            if d > MAX_JSON_DEPTH:
+                return d
+            stack.extend((x, d + 1) for x in v)
+    return depth
 
 
 def _n(count: int, noun: str, plural: str | None = None) -> str:
@@ -440,22 +478,31 @@ def _parse_pieces(blob: bytes, name: str, add):
     if len(bad):
         add(f"{name}: {_n(len(bad), 'face record')} without 3 indices (first: face {bad[0]})")
         raise _Fail
-    maps = []
+    # Walk the count prefixes with struct (a numpy call per piece costs ~1 us, which is
+    # most of the parse for a file of many small pieces); the lists are then views of
+    # one array read at once.
+    starts = np.empty(p, dtype=np.int64)
+    counts = np.empty(p, dtype=np.int64)
     pos = fixed
+    size = len(blob)
+    unpack = struct.Struct("<I").unpack_from
     for k in range(p):
-        if pos + 4 > len(blob):
+        if pos + 4 > size:
             add(f"{name}: file is truncated in the coarse_faces list of piece {k}")
             raise _Fail
-        cnt = int(np.frombuffer(blob, dtype="<u4", count=1, offset=pos)[0])
+        cnt = unpack(blob, pos)[0]
         pos += 4
-        if pos + 4 * cnt > len(blob):
+        if pos + 4 * cnt > size:
             add(f"{name}: file is truncated in the coarse_faces list of piece {k} ({cnt} entries)")
             raise _Fail
-        maps.append(np.frombuffer(blob, dtype="<u4", count=cnt, offset=pos).astype(np.uint32))
+        starts[k] = (pos - fixed) // 4
+        counts[k] = cnt
         pos += 4 * cnt
-    if pos != len(blob):
-        add(f"{name}: {len(blob) - pos} bytes after the last element")
+    if pos != size:
+        add(f"{name}: {size - pos} bytes after the last element")
         raise _Fail
+    words = np.frombuffer(blob, dtype="<u4", count=(size - fixed) // 4, offset=fixed).astype(np.uint32)
+    maps = [words[s:s + c] for s, c in zip(starts.tolist(), counts.tolist())]
     v = np.stack([vrec["x"], vrec["y"], vrec["z"]], axis=1).astype(np.float64)
     return v, vrec["piece"].astype(np.uint32), frec["idx"].astype(np.uint32), \
         frec["piece"].astype(np.uint32), maps
@@ -716,6 +763,139 @@ def write_bundle(path: str | os.PathLike, data: BundleData, *, force: bool = Fal
         raise
 
 
+#: Most vertices of one convex piece (docs/input-contract.md, shared with the runtime):
+#: the convexity test is vertices x faces per piece, so this bounds it at 1024 plane
+#: tests per face, linear in the file.
+MAX_PIECE_VERTICES = 1024
+#: Plane tests per batch of the convexity check: the (faces x vertices) distance
+#: matrices of a batch take 8 bytes per test, twice (8 MiB x 2 at 2^20).
+_CONVEX_BATCH = 1 << 20
+
+
+def _piece_invariants(v, f, vp, fp, vstart, fstart, check, tol):
+    """Closedness, zero-area faces, orientation and convexity of the pieces selected by
+    ``check`` (a mask over pieces), with time and memory linear in the file.
+
+    Each piece gets the first failing check of: closed and consistently wound; no
+    zero-area face; positive volume; convex within ``tol``. Returns the lists
+    (open, degenerate, inward, nonconvex) for the messages of check_pieces."""
+    p = len(vstart) - 1
+    fsel = np.flatnonzero(check[fp])
+    open_mask = np.zeros(p, dtype=bool)
+    ff = f[fsel].astype(np.int64)
+    fpp = fp[fsel].astype(np.int64)
+    # closed: every directed edge once and its reverse once (global indices are fine: a
+    # face only uses vertices of its own piece, checked before)
+    n = np.uint64(len(v))
+    src = ff.ravel().astype(np.uint64)
+    dst = ff[:, [1, 2, 0]].ravel().astype(np.uint64)
+    key = np.sort(src * n + dst)
+    dup = np.flatnonzero(key[1:] == key[:-1])
+    open_mask[vp[(key[dup] // n).astype(np.int64)]] = True
+    rkey = dst * n + src
+    pos = np.minimum(np.searchsorted(key, rkey), max(len(key) - 1, 0))
+    missing = key[pos] != rkey if len(key) else np.zeros(0, dtype=bool)
+    open_mask[vp[src[missing].astype(np.int64)]] = True
+    open_ = [int(k) for k in np.flatnonzero(open_mask & check)]
+    # zero-area faces, then orientation, for the closed pieces
+    alive = check & ~open_mask
+    keep = alive[fpp]
+    ff, fpp, fsel = ff[keep], fpp[keep], fsel[keep]
+    a, b, c = v[ff[:, 0]], v[ff[:, 1]], v[ff[:, 2]]
+    ln = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    zero = ln == 0
+    degen = []
+    if zero.any():
+        first = {}
+        for gi, k in zip(fsel[zero].tolist(), fpp[zero].tolist()):
+            first.setdefault(k, gi - int(fstart[k]))
+        degen = sorted(first.items())
+        alive[list(first)] = False
+    nvp = np.diff(vstart).astype(np.float64)
+    ctr = np.stack([np.bincount(vp, weights=v[:, i], minlength=p) for i in range(3)], axis=1)
+    ctr /= np.maximum(nvp, 1)[:, None]
+    cf = ctr[fpp]
+    vol_f = np.einsum("ij,ij->i", a - cf, np.cross(b - cf, c - cf)) / 6.0
+    vol = np.bincount(fpp, weights=vol_f, minlength=p)
+    inward_mask = alive & (vol <= 0)
+    inward = [(int(k), float(vol[k])) for k in np.flatnonzero(inward_mask)]
+    alive &= ~inward_mask
+    nonconvex = _convexity(v, f, vstart, fstart, np.flatnonzero(alive), tol)
+    return open_, degen, inward, nonconvex
+
+
+def _convexity(v, f, vstart, fstart, pieces, tol):
+    """(piece, worst distance, local face, local vertex) of every piece with a vertex more
+    than ``tol`` in front of one of its face planes.
+
+    Every vertex of a piece is tested against every face plane of it. Pieces are batched
+    by size (vertex and face counts rounded up to powers of two, padded with copies of
+    their last vertex and face, which change no maximum), so many small pieces cost a
+    few numpy calls rather than one each, and every batch holds at most _CONVEX_BATCH
+    tests. Positions are taken relative to the piece's first vertex, as exact as
+    n . (x - a) per pair."""
+    out = []
+    if len(pieces) == 0:
+        return out
+    nv = (vstart[pieces + 1] - vstart[pieces]).astype(np.int64)
+    nf = (fstart[pieces + 1] - fstart[pieces]).astype(np.int64)
+    pv_pad = 1 << np.ceil(np.log2(nv)).astype(np.int64)
+    pf_pad = 1 << np.ceil(np.log2(nf)).astype(np.int64)
+    buckets: dict[tuple[int, int], list[int]] = {}
+    for i, (a, b) in enumerate(zip(pv_pad.tolist(), pf_pad.tolist())):
+        buckets.setdefault((a, b), []).append(i)
+    for (vpad, fpad), members in sorted(buckets.items()):
+        members = np.asarray(members)
+        if vpad * fpad > _CONVEX_BATCH:      # one big piece: face chunks, no padding
+            for i in members.tolist():
+                res = _convex_one(v, f, int(pieces[i]), vstart, fstart, tol)
+                if res is not None:
+                    out.append(res)
+            continue
+        per = max(1, _CONVEX_BATCH // (vpad * fpad))
+        for s in range(0, len(members), per):
+            idx = members[s:s + per]
+            ks = pieces[idx]
+            vi = vstart[ks][:, None] + np.minimum(np.arange(vpad)[None, :], nv[idx][:, None] - 1)
+            fi = fstart[ks][:, None] + np.minimum(np.arange(fpad)[None, :], nf[idx][:, None] - 1)
+            ref = v[vstart[ks]][:, None, :]
+            pts = v[vi] - ref                                    # (B, vpad, 3)
+            tri = v[f[fi].astype(np.int64)] - ref[:, None, :, :]  # (B, fpad, 3, 3)
+            nrm = np.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+            nrm /= np.linalg.norm(nrm, axis=2, keepdims=True)
+            off = np.einsum("bfk,bfk->bf", nrm, tri[:, :, 0])
+            dist = np.matmul(nrm, pts.transpose(0, 2, 1))        # (B, fpad, vpad)
+            dist -= off[:, :, None]
+            flat = dist.reshape(len(idx), -1)
+            arg = flat.argmax(axis=1)
+            worst = flat[np.arange(len(idx)), arg]
+            for j in np.flatnonzero(worst > tol).tolist():
+                fj, vj = divmod(int(arg[j]), vpad)
+                out.append((int(ks[j]), float(worst[j]), fj, vj))
+    out.sort()
+    return out
+
+
+def _convex_one(v, f, k, vstart, fstart, tol):
+    pv = v[vstart[k]:vstart[k + 1]]
+    ref = pv[0]
+    pts = pv - ref
+    pf = f[fstart[k]:fstart[k + 1]].astype(np.int64)
+    chunk = max(1, _CONVEX_BATCH // len(pv))
+    best = (-np.inf, 0, 0)
+    for s in range(0, len(pf), chunk):
+        tri = v[pf[s:s + chunk]] - ref
+        nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        dist = nrm @ pts.T
+        dist -= np.einsum("fk,fk->f", nrm, tri[:, 0])[:, None]
+        a = int(np.argmax(dist))
+        fi, vi = divmod(a, len(pv))
+        if dist[fi, vi] > best[0]:
+            best = (float(dist[fi, vi]), s + fi, vi)
+    return (k, best[0], best[1], best[2]) if best[0] > tol else None
+
+
 # --------------------------------------------------------------------------- reading and validation
 
 class _Checker:
@@ -747,7 +927,7 @@ class _Checker:
             self.add("io", "not a directory (a bundle is a directory)")
             return False
         try:
-            raw = mpath.read_bytes()
+            raw = read_regular(mpath, MAX_MANIFEST_BYTES)
         except FileNotFoundError:
             self.add("io", "manifest.json: missing")
             return False
@@ -758,32 +938,54 @@ class _Checker:
             # Python's json accepts NaN and Infinity; JSON (and nlohmann-json) does not.
             raise ValueError(f"{token} is not valid JSON")
 
+        def finite_float(text: str) -> float:
+            # ... and turns 1e999 into inf, which is no JSON number either
+            x = float(text)
+            if not np.isfinite(x):
+                raise ValueError(f"number {_short(text)} is out of range")
+            return x
+
         try:
-            m = json.loads(raw.decode("utf-8"), parse_constant=no_constants)
+            m = json.loads(raw.decode("utf-8"), parse_constant=no_constants, parse_float=finite_float)
+        except RecursionError:
+            # the json module recurses once per level; the limit below stops what it survives
+            self.add("schema", f"manifest.json: nested deeper than {MAX_JSON_DEPTH} levels")
+            return False
         except (UnicodeDecodeError, ValueError) as e:  # JSONDecodeError is a ValueError
-            self.add("schema", f"manifest.json: not valid UTF-8 JSON: {e}")
+            self.add("schema", f"manifest.json: not valid UTF-8 JSON: {_short(str(e), 200)}")
             return False
         if not isinstance(m, dict):
             self.add("schema", f"manifest.json: top level is a {type(m).__name__}, not an object")
             return False
+        if _json_depth(m) > MAX_JSON_DEPTH:
+            # jsonschema and repr() recurse too (in its messages), so a deep value would
+            # overflow the stack there instead
+            self.add("schema", f"manifest.json: nested deeper than {MAX_JSON_DEPTH} levels")
+            return False
         # Format and version first: a bundle of another major version may have
         # another schema, so its schema errors would only hide the real problem.
         if m.get("format") != FORMAT_NAME:
-            self.add("version", f"manifest.json: format is {m.get('format')!r}, not {FORMAT_NAME!r} "
+            self.add("version", f"manifest.json: format is {_short(m.get('format'))}, not {FORMAT_NAME!r} "
                      "(not an hbundle)")
             return False
         ver = m.get("format_version")
         mm = re.fullmatch(r"([0-9]+)\.([0-9]+)", ver) if isinstance(ver, str) else None
         if mm is None:
-            self.add("version", f"manifest.json: format_version {ver!r} is not MAJOR.MINOR")
+            self.add("version", f"manifest.json: format_version {_short(ver)} is not MAJOR.MINOR")
             return False
-        if int(mm.group(1)) != FORMAT_MAJOR:
-            self.add("version", f"manifest.json: unsupported major version {ver} "
+        # Compared as digits: int() refuses more than 4300 of them (and would gain nothing).
+        if (mm.group(1).lstrip("0") or "0") != str(FORMAT_MAJOR):
+            self.add("version", f"manifest.json: unsupported major version {_short(ver, quote=False)} "
                      f"(this reader supports {FORMAT_MAJOR}.x)")
             return False
         import jsonschema
         validator = jsonschema.Draft202012Validator(load_schema())
-        errors = sorted(validator.iter_errors(m), key=lambda e: (list(map(str, e.absolute_path)), e.message))
+        try:
+            errors = sorted(validator.iter_errors(m),
+                            key=lambda e: (list(map(str, e.absolute_path)), e.message))
+        except RecursionError:       # not reached below MAX_JSON_DEPTH; kept as a guard
+            self.add("schema", f"manifest.json: nested deeper than {MAX_JSON_DEPTH} levels")
+            return False
         for e in errors:
             where = "/".join(str(p) for p in e.absolute_path) or "(top level)"
             msg = e.message if len(e.message) <= 200 else e.message[:197] + "..."
@@ -798,7 +1000,7 @@ class _Checker:
         entry = self.manifest["files"][key]
         p = self.path / entry["path"]
         try:
-            blob = p.read_bytes()
+            blob = read_regular(p)
         except FileNotFoundError:
             self.add("io", f"{entry['path']}: missing ({key} file named by the manifest)")
             return None
@@ -874,6 +1076,14 @@ class _Checker:
         if (decl["width"], decl["height"]) != (entry["width"], entry["height"]):
             add(f"manifest.json: atlas is {decl['width']}x{decl['height']} but files.atlas says "
                 f"{entry['width']}x{entry['height']}")
+        sizes = {(entry["width"], entry["height"]), (decl["width"], decl["height"])}
+        over = [(w, h) for w, h in sorted(sizes) if not _atlas_size_ok(w, h)]
+        if over:
+            # before OpenEXR reads a pixel: a ZIP block can expand a thousandfold, so the
+            # file's size bounds nothing (the header's window must equal this size below)
+            add(f"{name}: atlas is {over[0][0]}x{over[0][1]}, over the limit of "
+                f"{C.MAX_ATLAS_SIDE} texels per side and {C.MAX_ATLAS_TEXELS:,} texels")
+            return
         if blob is None:
             return
         ex = _exr()
@@ -1061,12 +1271,7 @@ class _Checker:
             add(f"{name}: {_n(len(bad), 'vertex', 'vertices')} with non-finite positions (first: vertex {bad[0]})")
             structural_ok = False
         m_coarse = len(self.coarse[1]) if self.coarse is not None else self.manifest["coarse"]["triangles"]
-        for k, mp in enumerate(maps):
-            if len(mp) and int(mp.max()) >= m_coarse:
-                add(f"{name}: piece {k} maps to coarse triangle {int(mp.max())}, out of range "
-                    f"(coarse triangle count {m_coarse})")
-            if len(mp) > 1 and np.any(np.diff(mp.astype(np.int64)) <= 0):
-                add(f"{name}: coarse_faces of piece {k} are not ascending and unique")
+        self._check_maps(name, add, maps, m_coarse)
         if not structural_ok:
             return
         vstart = np.searchsorted(vp, np.arange(p + 1))
@@ -1076,44 +1281,22 @@ class _Checker:
         else:
             diag = _bbox_diagonal(v)
         tol = convexity_tolerance(diag)
-        small, open_, inward, nonconvex, degen = [], [], [], [], []
-        for k in range(p):
-            pv = v[vstart[k]:vstart[k + 1]]
-            pf = f[fstart[k]:fstart[k + 1]].astype(np.int64) - vstart[k]
-            if len(pv) < 4 or len(pf) < 4:
-                small.append((k, len(pv), len(pf)))
-                continue
-            if not self.invariants:
-                continue
-            # closed and consistently wound: every directed edge once, its reverse once
-            e = np.concatenate([pf[:, [0, 1]], pf[:, [1, 2]], pf[:, [2, 0]]])
-            key = e[:, 0] * len(pv) + e[:, 1]
-            rkey = e[:, 1] * len(pv) + e[:, 0]
-            uniq, cnt = np.unique(key, return_counts=True)
-            if np.any(cnt != 1) or not np.all(np.isin(rkey, uniq)):
-                open_.append(k)
-                continue
-            a, b, c = pv[pf[:, 0]], pv[pf[:, 1]], pv[pf[:, 2]]
-            nrm = np.cross(b - a, c - a)
-            ln = np.linalg.norm(nrm, axis=1)
-            if np.any(ln == 0):
-                degen.append((k, int(np.flatnonzero(ln == 0)[0])))
-                continue
-            ctr = pv.mean(axis=0)
-            vol = np.einsum("ij,ij->", a - ctr, np.cross(b - ctr, c - ctr)) / 6.0
-            if vol <= 0:
-                inward.append((k, vol))
-                continue
-            nrm /= ln[:, None]
-            # signed distance of every vertex of the piece to every face plane
-            dist = np.einsum("fk,fvk->fv", nrm, pv[None, :, :] - a[:, None, :])
-            worst = dist.max()
-            if worst > tol:
-                fi, vi = np.unravel_index(int(np.argmax(dist)), dist.shape)
-                nonconvex.append((k, float(worst), int(fi), int(vi)))
+        nv, nf = np.diff(vstart), np.diff(fstart)
+        small_mask = (nv < 4) | (nf < 4)
+        big_mask = ~small_mask & (nv > MAX_PIECE_VERTICES)
+        small = [(int(k), int(nv[k]), int(nf[k])) for k in np.flatnonzero(small_mask)]
+        big = [(int(k), int(nv[k])) for k in np.flatnonzero(big_mask)]
+        open_, inward, nonconvex, degen = [], [], [], []
+        if self.invariants:
+            open_, degen, inward, nonconvex = _piece_invariants(
+                v, f, vp, fp, vstart, fstart, ~small_mask & ~big_mask, tol)
         if small:
             add(f"{name}: {_n(len(small), 'piece')} with fewer than 4 vertices or 4 faces: "
                 + _examples(small, lambda x: f"piece {x[0]} has {x[1]} vertices, {x[2]} faces"))
+        if big:
+            add(f"{name}: {_n(len(big), 'piece')} over the vertex limit: "
+                + _examples(big, lambda x: f"piece {x[0]} has {x[1]} vertices, more than the "
+                            f"limit {MAX_PIECE_VERTICES}"))
         if open_:
             add(f"{name}: {_n(len(open_), 'piece')} not a closed, consistently wound polyhedron: "
                 + _examples(open_, lambda k: f"piece {k}"))
@@ -1128,6 +1311,31 @@ class _Checker:
                 + _examples(nonconvex, lambda x: f"piece {x[0]}: vertex {x[3]} lies {x[1]:.3g} m in front "
                             f"of face {x[2]} (local indices)"))
         self.pieces = (v, vp, f, fp, maps, vstart, fstart)
+
+    def _check_maps(self, name: str, add, maps: list[np.ndarray], m_coarse: int) -> None:
+        """coarse_faces of every piece in range, ascending and unique (all pieces at once:
+        a loop over 10^5 small pieces would dominate the check)."""
+        if not maps:
+            return
+        counts = np.fromiter((len(mp) for mp in maps), dtype=np.int64, count=len(maps))
+        if counts.sum() == 0:
+            return
+        entries = np.concatenate(maps).astype(np.int64)
+        pid = np.repeat(np.arange(len(maps)), counts)
+        out_of_range = np.unique(pid[entries >= m_coarse])
+        same = pid[1:] == pid[:-1]
+        unordered = np.unique(pid[1:][same & (np.diff(entries) <= 0)])
+        flagged = np.union1d(out_of_range, unordered)
+        for k in flagged[:_MAX_EXAMPLES].tolist():
+            mp = maps[k]
+            if k in out_of_range:
+                add(f"{name}: piece {k} maps to coarse triangle {int(mp.max())}, out of range "
+                    f"(coarse triangle count {m_coarse})")
+            if k in unordered:
+                add(f"{name}: coarse_faces of piece {k} are not ascending and unique")
+        if len(flagged) > _MAX_EXAMPLES:
+            add(f"{name}: coarse_faces of {_n(len(flagged) - _MAX_EXAMPLES, 'more piece')} out of range, "
+                "not ascending or not unique")
 
     # -- everything ---------------------------------------------------------------
     def run(self) -> Bundle | None:

@@ -46,14 +46,20 @@ def _parse_atlas_size(ctx, param, value):
         raise click.BadParameter(f"{value!r}: expected N or WxH, e.g. 1024 or 2048x1024") from None
     if min(size) <= 0:
         raise click.BadParameter(f"{value!r}: sizes must be positive")
+    from hbake.constants import MAX_ATLAS_SIDE, MAX_ATLAS_TEXELS
+    if max(size) > MAX_ATLAS_SIDE or size[0] * size[1] > MAX_ATLAS_TEXELS:
+        raise click.BadParameter(f"{value!r}: at most {MAX_ATLAS_SIDE} texels per side and "
+                                 f"{MAX_ATLAS_TEXELS:,} texels in all")
     return size
 
 
 @main.command("bake", context_settings=CONTEXT)
-@click.argument("input", type=click.Path(path_type=Path, dir_okay=True))
+# readable=False: click's own check would refuse an unreadable input with a usage error
+# (exit 2, three lines); hbake.load reports it as exit 3 in one line.
+@click.argument("input", type=click.Path(path_type=Path, dir_okay=True, readable=False))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="Bundle directory to write (name ending in .hbundle).")
-@click.option("-c", "--config", "config", type=click.Path(path_type=Path),
+@click.option("-c", "--config", "config", type=click.Path(path_type=Path, readable=False),
               help="TOML settings file (see configs/); options below override it.")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override any setting, e.g. --set simplify.quality_threshold=0.5 "

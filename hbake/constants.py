@@ -17,6 +17,27 @@ UNIT_FROM_FORMAT: dict[str, str] = {".gltf": "m", ".glb": "m"}
 SUPPORTED_EXTENSIONS = (".obj", ".ply", ".stl", ".off", ".gltf", ".glb")
 
 # --- load and repair -----------------------------------------------------------------------
+#: Largest input file read (bytes): 1 GiB is about 21 M triangles of binary STL, far past
+#: what a haptic bake needs (the paper's models have 285k-658k triangles); the readers
+#: hold several times the file in memory.
+MAX_INPUT_BYTES = 1 << 30
+#: Coordinate range of an input after scaling to meters. Haptic objects are hand-held
+#: to room-sized; the bundle stores positions as float32 (coarse.ply, atlas.exr,
+#: pieces.ply), and native stages misbehave far outside that: pymeshlab crashes at
+#: 1e200, xatlas asserts on normals it cannot normalise at 1e15 and hangs at 1e20.
+#: Every used coordinate is finite with |x| <= MAX_COORDINATE, the bounding-box diagonal
+#: lies in [MIN_BBOX_DIAGONAL, MAX_BBOX_DIAGONAL] (10 um: below it the texel of a
+#: 1024 atlas is 10 nm, and float32 epsilon-scale tolerances of the stages stop making
+#: sense), ...
+MAX_COORDINATE = 1e4
+MIN_BBOX_DIAGONAL = 1e-5
+MAX_BBOX_DIAGONAL = 1e4
+#: ... and the part lies within MAX_OFFSET_RATIO bounding-box diagonals of the origin:
+#: the float32 spacing at its largest coordinate X is 2^-23 X <= 1.2e-4 diagonal, at most
+#: 1/8 of the texel of the default 1024 atlas (a texel is at least about diagonal / 1000)
+#: and about one texel at the 8192 maximum. The bundle is not re-centred (the object
+#: frame is the file's), so a part modelled far from its origin must be moved.
+MAX_OFFSET_RATIO = 1e3
 #: A face is degenerate (zero area) when its height is below this fraction of its longest
 #: edge: a shape criterion, so tiny but well-shaped triangles of big CAD parts stay (the
 #: shared planetary_gears.stl has genuine faces of area 4e-13 diag**2). 1e-9 sits above
@@ -52,6 +73,11 @@ PRE_DECIMATE_AGGRESSIVENESS = 7
 # --- parameterize --------------------------------------------------------------------------
 #: The paper stores 1024x1024 float textures (Sec. 6.2).
 DEFAULT_ATLAS_SIZE = 1024
+#: Atlas limit shared with the runtime (docs/input-contract.md): each side at most 8192
+#: texels and at most 16,777,216 texels in all (256 MiB of float32 RGBA), checked from
+#: the manifest and the EXR header before any pixel is decoded.
+MAX_ATLAS_SIDE = 8192
+MAX_ATLAS_TEXELS = 16_777_216
 #: Texels between charts (xatlas ``padding``); with ``bilinear`` packing this keeps every
 #: bilinear footprint of one chart off the texels of another, so no lookup crosses a seam.
 DEFAULT_PADDING = 2

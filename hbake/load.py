@@ -24,6 +24,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import re
 import warnings as pywarnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +33,7 @@ import numpy as np
 
 from hbake import constants as C
 from hbake.errors import InputInvalidError, InputMissingError
+from hbake.fileio import FileTooLargeError, check_regular, read_regular
 from hbake.geometry import (bbox_diagonal, boundary_edge_count, face_components,
                             is_closed, signed_volumes, unique_rows)
 from hbake.settings import LoadSettings
@@ -72,20 +74,32 @@ def load_mesh(path: str | os.PathLike, settings: LoadSettings | None = None,
         if warn is not None:
             warn(msg)
 
-    if not path.exists():
-        raise InputMissingError(f"{path}: no such file")
-    if path.is_dir():
-        raise InputMissingError(f"{path}: is a directory, not a mesh file")
+    # Regular files only (a FIFO or /dev/zero, also behind a symlink, would block or
+    # never end), checked on the opened file; then the size limit, before reading.
+    try:
+        check_regular(path, C.MAX_INPUT_BYTES)
+    except FileNotFoundError:
+        raise InputMissingError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise InputMissingError(f"{path}: is a directory, not a mesh file") from None
+    except FileTooLargeError as exc:
+        raise InputInvalidError(f"{path}: {exc.strerror}") from None
+    except OSError as exc:
+        raise InputMissingError(f"{path}: cannot read: {exc.strerror}") from None
     if ext not in C.SUPPORTED_EXTENSIONS:
         raise InputInvalidError(f"{path}: unsupported file type '{ext or '(none)'}' "
                                 f"(supported: {' '.join(C.SUPPORTED_EXTENSIONS)})")
     try:
-        data = path.read_bytes()
+        data = read_regular(path, C.MAX_INPUT_BYTES)
+    except FileTooLargeError as exc:
+        raise InputInvalidError(f"{path}: {exc.strerror}") from None
     except OSError as exc:
         raise InputMissingError(f"{path}: cannot read: {exc.strerror}") from None
     if len(data.strip()) == 0:
         raise InputInvalidError(f"{path}: file is empty")
     sha256 = hashlib.sha256(data).hexdigest()
+    if ext == ".obj":
+        _check_obj_face_indices(data, path)
 
     vertices, faces = _parse(path, ext)
     if len(faces) == 0 or len(vertices) == 0:
@@ -104,7 +118,9 @@ def load_mesh(path: str | os.PathLike, settings: LoadSettings | None = None,
     else:
         unit = C.UNIT_FROM_FORMAT.get(ext, "unknown")
     scale = C.UNIT_SCALE.get(unit, 1.0)
-    vertices = vertices * scale
+    with np.errstate(over="ignore"):
+        vertices = vertices * scale
+    _check_extent(vertices, faces, path, unit)
 
     # --- repair ------------------------------------------------------------------------
     vertices, faces, repair = repair_mesh(vertices, faces)
@@ -153,6 +169,13 @@ def _parse(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray]:
             pywarnings.simplefilter("ignore")
             loaded = trimesh.load(str(path), force="mesh", process=False,
                                   skip_materials=True)
+    except AssertionError:
+        # trimesh's glTF reader asserts that each buffer view and accessor fits its
+        # buffer; the bare AssertionError says nothing
+        what = ("a buffer, buffer view or accessor is shorter than the file declares "
+                "(truncated or inconsistent binary data)" if ext in (".gltf", ".glb")
+                else "the reader found inconsistent data")
+        raise InputInvalidError(f"{path}: cannot parse as {ext[1:].upper()}: {what}") from None
     except ImportError:
         # trimesh falls back to the optional charset_normalizer to guess the
         # encoding of text that is not UTF-8: for a mesh file that means bytes
@@ -169,6 +192,47 @@ def _parse(path: Path, ext: str) -> tuple[np.ndarray, np.ndarray]:
     vertices = np.asarray(loaded.vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3)
     return vertices, faces
+
+
+#: An OBJ face line with a vertex index of 0 (OBJ counts from 1; trimesh would quietly
+#: turn it into another vertex and the face into a degenerate one, dropped by repair).
+_OBJ_ZERO_INDEX = re.compile(rb"(?m)^[ \t]*f[ \t](?:[^\n]*?[ \t])?[+-]?0+(?=[/ \t\r\n]|$)")
+
+
+def _check_obj_face_indices(data: bytes, path: Path) -> None:
+    m = _OBJ_ZERO_INDEX.search(data)
+    if m is not None:
+        line = data.count(b"\n", 0, m.start()) + 1
+        raise InputInvalidError(f"{path}: line {line}: face with vertex index 0 (OBJ vertex "
+                                f"indices start at 1)")
+
+
+def _check_extent(vertices: np.ndarray, faces: np.ndarray, path: Path, unit: str) -> None:
+    """Refuse coordinates that the bake cannot represent (see constants.MAX_COORDINATE):
+    beyond 1e4 m, a bounding box outside [1e-5 m, 1e4 m], or a part farther from the
+    origin than MAX_OFFSET_RATIO times its size. Only vertices that faces use count."""
+    used = np.unique(faces)
+    v = vertices[used]
+    how = "" if unit == "m" else f" (in meters, the file's unit taken as {unit if unit != 'unknown' else 'm'})"
+    with np.errstate(over="ignore", invalid="ignore"):
+        if not np.isfinite(v).all():          # finite in the file, overflowed by the unit scale
+            raise InputInvalidError(f"{path}: coordinates overflow when scaled to meters")
+        amax = float(np.abs(v).max())
+        if amax > C.MAX_COORDINATE:
+            raise InputInvalidError(
+                f"{path}: a coordinate is {amax:.3g} m{how}, beyond the limit of "
+                f"{C.MAX_COORDINATE:g} m (wrong --units? hbake bakes objects up to "
+                f"{C.MAX_BBOX_DIAGONAL:g} m across, near the origin)")
+        diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    if not C.MIN_BBOX_DIAGONAL <= diag <= C.MAX_BBOX_DIAGONAL:
+        raise InputInvalidError(
+            f"{path}: the bounding box diagonal is {diag:.3g} m{how}, outside "
+            f"[{C.MIN_BBOX_DIAGONAL:g} m, {C.MAX_BBOX_DIAGONAL:g} m] (wrong --units?)")
+    if amax > C.MAX_OFFSET_RATIO * diag:
+        raise InputInvalidError(
+            f"{path}: the part is {diag:.3g} m across but {amax:.3g} m from the origin "
+            f"(more than {C.MAX_OFFSET_RATIO:g} times its size): float32 positions there "
+            f"are too coarse for its texels; move it nearer the origin")
 
 
 def repair_mesh(vertices: np.ndarray, faces: np.ndarray, cancel_fins: bool = False):

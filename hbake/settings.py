@@ -22,6 +22,10 @@ from typing import Any
 
 from hbake import constants as C
 from hbake.errors import ConfigError
+from hbake.fileio import read_regular
+
+#: A settings file is a few hundred bytes; this only keeps a wrong path from filling memory.
+MAX_CONFIG_BYTES = 1 << 20
 
 
 def _opt(default: Any, doc: str, *, choices: tuple | None = None,
@@ -77,8 +81,10 @@ class SimplifySettings(_Validated):
 
 @dataclass(frozen=True)
 class ParameterizeSettings(_Validated):
-    atlas_width: int = _opt(C.DEFAULT_ATLAS_SIZE, "Atlas width in texels.", lo=16, hi=16384)
-    atlas_height: int = _opt(C.DEFAULT_ATLAS_SIZE, "Atlas height in texels.", lo=16, hi=16384)
+    atlas_width: int = _opt(C.DEFAULT_ATLAS_SIZE, "Atlas width in texels (width x height "
+                            f"at most {C.MAX_ATLAS_TEXELS:,}).", lo=16, hi=C.MAX_ATLAS_SIDE)
+    atlas_height: int = _opt(C.DEFAULT_ATLAS_SIZE, "Atlas height in texels.", lo=16,
+                             hi=C.MAX_ATLAS_SIDE)
     padding: int = _opt(C.DEFAULT_PADDING, "Texels between charts (xatlas padding); at "
                         "least 2 so bilinear lookups never reach another chart.", lo=2, hi=64)
     max_chart_cost: float = _opt(C.DEFAULT_MAX_CHART_COST, "xatlas: cost limit of chart "
@@ -86,6 +92,17 @@ class ParameterizeSettings(_Validated):
     normal_deviation_weight: float = _opt(C.DEFAULT_NORMAL_DEVIATION_WEIGHT, "xatlas: "
                                           "weight of normal deviation in chart growing "
                                           "(higher = charts break at hard edges).", lo=0.0)
+
+    def __post_init__(self):
+        super().__post_init__()
+        check_atlas_texels(self.atlas_width, self.atlas_height, "parameterize")
+
+
+def check_atlas_texels(w: int, h: int, where: str) -> None:
+    """The product half of the shared atlas limit (each side is a field's range)."""
+    if w * h > C.MAX_ATLAS_TEXELS:
+        raise ConfigError(f"{where}: atlas_width x atlas_height = {w}x{h} = {w * h:,} texels, more than the limit "
+                          f"of {C.MAX_ATLAS_TEXELS:,}")
 
 
 @dataclass(frozen=True)
@@ -194,8 +211,9 @@ class BakeSettings(_Validated):
         """Read a TOML config file (``configs/*.toml``)."""
         path = Path(path)
         try:
-            with path.open("rb") as fh:
-                data = tomllib.load(fh)
+            data = tomllib.loads(read_regular(path, MAX_CONFIG_BYTES).decode("utf-8"))
+        except UnicodeDecodeError:
+            raise ConfigError(f"{path}: not valid TOML: not UTF-8 text") from None
         except FileNotFoundError:
             raise ConfigError(f"{path}: config file not found") from None
         except OSError as exc:
@@ -258,7 +276,10 @@ def _build_section(cls, data: dict, where: str):
         if key not in known:
             raise ConfigError(f"{where}: unknown setting '{key}' (known: {', '.join(known)})")
         kwargs[key] = _coerce(known[key], value, f"{where} {key}")
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except ConfigError as exc:   # a check across fields (the atlas's texel count)
+        raise ConfigError(f"{where}: {exc}") from None
 
 
 def describe() -> list[tuple[str, Any, str]]:

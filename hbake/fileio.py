@@ -1,0 +1,71 @@
+"""Reading input files safely: regular files only, with a size limit.
+
+A path may name a FIFO (``open`` blocks until a writer comes, ``read`` never ends), a
+character device such as ``/dev/zero`` (endless bytes) or a directory, directly or
+through a symlink. ``read_regular`` opens without blocking, checks the opened file
+itself (``fstat``, so a file swapped after a check cannot slip through) and reads
+only a regular file of at most ``limit`` bytes. Failures are ``OSError``s whose
+``strerror`` reads well after "cannot read: ".
+"""
+from __future__ import annotations
+
+import errno
+import os
+import stat
+
+__all__ = ["NotRegularFileError", "FileTooLargeError", "read_regular", "check_regular",
+           "file_kind"]
+
+
+class NotRegularFileError(OSError):
+    """The path names a FIFO, a device, a socket (or a directory)."""
+
+
+class FileTooLargeError(OSError):
+    """The file is larger than the reader's limit."""
+
+
+def file_kind(mode: int) -> str:
+    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def _check(st: os.stat_result, path, limit: int | None) -> None:
+    if stat.S_ISDIR(st.st_mode):
+        raise IsADirectoryError(errno.EISDIR, "is a directory, not a file", str(path))
+    if not stat.S_ISREG(st.st_mode):
+        raise NotRegularFileError(errno.EINVAL, f"not a regular file (it is {file_kind(st.st_mode)})",
+                                  str(path))
+    if limit is not None and st.st_size > limit:
+        raise FileTooLargeError(errno.EFBIG, f"file is {st.st_size:,} bytes, more than the limit "
+                                f"of {limit:,} bytes", str(path))
+
+
+def check_regular(path: str | os.PathLike, limit: int | None = None) -> os.stat_result:
+    """``os.stat`` (following symlinks) of a regular file of at most ``limit`` bytes."""
+    st = os.stat(path)
+    _check(st, path, limit)
+    return st
+
+
+def read_regular(path: str | os.PathLike, limit: int | None = None) -> bytes:
+    """The bytes of the regular file ``path`` (at most ``limit`` of them)."""
+    # O_NONBLOCK: opening a FIFO for reading would otherwise wait for a writer.
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    try:
+        _check(os.fstat(fd), path, limit)
+        os.set_blocking(fd, True)
+        with os.fdopen(fd, "rb") as fh:
+            fd = -1
+            data = fh.read() if limit is None else fh.read(limit + 1)
+    finally:
+        if fd >= 0:
+            os.close(fd)
+    if limit is not None and len(data) > limit:      # it grew after fstat
+        raise FileTooLargeError(errno.EFBIG, f"file is more than the limit of {limit:,} bytes",
+                                str(path))
+    return data

@@ -1,0 +1,418 @@
+"""Reliability of hbake on hostile or absurd input (the hbake side of the reliability issue).
+
+Each test fails on the code before the fix: a traceback, a hang, a quadratic blow-up, a
+native library's chatter on the terminal, or a file left behind. Inputs are small and
+generated here. CLI tests run the real console script and check the exit code and the
+one-line ``hbake: error: <file>: <what>`` (or ``BUNDLE: <class>: <message>``) without a
+traceback.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hbake import bundle as hb
+from hbake.errors import (EXIT_BAKE_FAILED, EXIT_CONFIG, EXIT_INPUT_INVALID, EXIT_INPUT_MISSING,
+                          EXIT_INTERRUPTED, EXIT_USAGE, VALIDATE_EXIT)
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_bundle import cube_data  # noqa: E402  (the hand-built cube bundle)
+
+
+def _hbake() -> list[str]:
+    script = Path(sys.executable).with_name("hbake")
+    if script.exists():
+        return [str(script)]
+    return [sys.executable, "-c", "from hbake.cli import main; main()"]
+
+
+def _env(**extra) -> dict:
+    env = dict(os.environ)
+    env.pop("FORCE_COLOR", None)
+    env.pop("HBAKE_DEBUG", None)
+    env["NO_COLOR"] = "1"
+    env["COLUMNS"] = "200"
+    env.update(extra)
+    return env
+
+
+def _run(args: list[str], cwd: Path, timeout: float = 120, **popen):
+    return subprocess.run(_hbake() + args, cwd=cwd, capture_output=True, text=True,
+                          timeout=timeout, env=_env(), **popen)
+
+
+def _one_error_line(r, want_rc: int, *mentions: str) -> str:
+    out = r.stdout + r.stderr
+    assert "Traceback" not in out, out[-3000:]
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, f"expected one line on stderr, got {len(lines)}:\n{r.stderr[-3000:]}"
+    assert lines[0].startswith("hbake: error: "), lines[0]
+    for m in mentions:
+        assert m in lines[0], f"{m!r} not in {lines[0]!r}"
+    assert r.returncode == want_rc, f"exit {r.returncode}, expected {want_rc}: {lines[0]}"
+    return lines[0]
+
+
+def _validate(bundle: Path, cls: str, *mentions: str, timeout: float = 60) -> str:
+    r = _run(["validate", str(bundle)], bundle.parent, timeout=timeout)
+    assert "Traceback" not in r.stdout + r.stderr, (r.stdout + r.stderr)[-3000:]
+    lines = [ln for ln in r.stdout.splitlines() if ln.strip()]
+    assert lines, r.stderr
+    assert lines[0].startswith(f"{bundle}: {cls}: "), lines
+    for m in mentions:
+        assert m in lines[0], f"{m!r} not in {lines[0]!r}"
+    assert r.returncode == VALIDATE_EXIT[cls], (r.returncode, lines)
+    assert max(len(ln) for ln in lines) < 2000, "a problem line echoes the whole input"
+    return lines[0]
+
+
+def _rehash(bundle: Path, manifest: dict | None = None) -> None:
+    """Recompute sizes and SHA-256 of the files in the manifest (so only the content
+    check can catch a change)."""
+    mpath = bundle / "manifest.json"
+    m = manifest if manifest is not None else json.loads(mpath.read_text())
+    for entry in m["files"].values():
+        blob = (bundle / entry["path"]).read_bytes()
+        entry["bytes"] = len(blob)
+        entry["sha256"] = hashlib.sha256(blob).hexdigest()
+    mpath.write_bytes(hb.manifest_bytes(m))
+
+
+@pytest.fixture()
+def cube(tmp_path) -> Path:
+    out = tmp_path / "cube.hbundle"
+    hb.write_bundle(out, cube_data())
+    return out
+
+
+# --------------------------------------------------------------------------- A: manifest
+
+def test_validate_huge_format_version_is_a_version_error(cube):
+    m = json.loads((cube / "manifest.json").read_text())
+    m["format_version"] = "1" * 26_500 + ".0"
+    (cube / "manifest.json").write_bytes(hb.manifest_bytes(m))
+    line = _validate(cube, "version", "unsupported major version")
+    assert len(line) < 400
+
+
+def test_validate_huge_major_one_with_zeros_is_accepted_as_one(cube):
+    m = json.loads((cube / "manifest.json").read_text())
+    m["format_version"] = "0" * 5000 + "1.0"       # int() of it is 1: still version 1
+    (cube / "manifest.json").write_bytes(hb.manifest_bytes(m))
+    assert hb.validate_bundle(cube) == []
+
+
+@pytest.mark.parametrize("depth", [35_000, 900])
+def test_validate_deeply_nested_manifest_is_a_schema_error(cube, depth):
+    m = json.loads((cube / "manifest.json").read_text())
+    text = hb.manifest_bytes(m).decode()
+    # a field of the wrong type (coarse.vertices must be an integer) nested `depth` deep
+    nested = "[" * depth + "1" + "]" * depth
+    text = text.replace('"vertices": 8', f'"vertices": {nested}', 1)
+    assert nested in text
+    (cube / "manifest.json").write_text(text)
+    _validate(cube, "schema", "manifest.json")
+
+
+def test_validate_infinite_number_in_manifest_is_a_schema_error(cube):
+    text = (cube / "manifest.json").read_text().replace('"density": 1.0', '"density": 1e999', 1)
+    (cube / "manifest.json").write_text(text)
+    _validate(cube, "schema", "manifest.json")
+
+
+# --------------------------------------------------------------------------- B: pieces, atlas
+
+def _sphere_hull(n: int, rng, centre, radius):
+    from hbake.mass import convex_hull_mesh
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    pts = (np.asarray(centre) + radius * d).astype(np.float32).astype(np.float64)
+    hv, hf = convex_hull_mesh(pts)
+    return hv, hf.astype(np.uint32)
+
+
+def write_pieces(bundle: Path, pieces: list[tuple[np.ndarray, np.ndarray]]) -> int:
+    """Replace the cube bundle's pieces by ``pieces`` (each mapped to triangle 0) and fix
+    the manifest; returns the size of pieces.ply."""
+    path = bundle / "pieces.ply"
+    hb.write_pieces_ply(path, [p[0] for p in pieces], [p[1] for p in pieces],
+                        [np.array([0], np.uint32)] * len(pieces))
+    m = json.loads((bundle / "manifest.json").read_text())
+    m["pieces"]["count"] = len(pieces)
+    _rehash(bundle, m)
+    return path.stat().st_size
+
+
+def many_small_pieces(count: int, n: int = 12, seed: int = 0):
+    """``count`` convex hulls of ``n`` points inside the 0.1 m cube: one hull, translated
+    (identical shapes keep the generator fast; the validator checks each one)."""
+    rng = np.random.default_rng(seed)
+    hv, hf = _sphere_hull(n, rng, (0, 0, 0), 0.004)
+    centres = rng.uniform(0.005, 0.095, size=(count, 3))
+    return [((hv + c).astype(np.float32).astype(np.float64), hf) for c in centres]
+
+
+def test_validate_refuses_a_piece_over_the_vertex_limit(cube):
+    rng = np.random.default_rng(1)
+    big = _sphere_hull(1500, rng, (0.05, 0.05, 0.05), 0.04)
+    write_pieces(cube, [big] + many_small_pieces(2))
+    assert len(big[0]) > hb.MAX_PIECE_VERTICES
+    _validate(cube, "pieces", f"piece 0 has {len(big[0])} vertices, more than the limit 1024")
+
+
+def test_validate_accepts_a_piece_at_the_vertex_limit(cube):
+    rng = np.random.default_rng(2)
+    hv, hf = _sphere_hull(1024, rng, (0.05, 0.05, 0.05), 0.04)
+    assert len(hv) == 1024
+    write_pieces(cube, [(hv, hf)])
+    assert hb.validate_bundle(cube) == []
+
+
+def test_validate_still_finds_a_nonconvex_piece_among_many(cube):
+    pieces = many_small_pieces(300)
+    hv, hf = pieces[123]
+    hv = hv.copy()
+    hv[0] = hv[:].mean(axis=0) + 0.3 * (hv[0] - hv.mean(axis=0))   # dent one vertex inwards
+    pieces[123] = (hv, hf)
+    write_pieces(cube, pieces)
+    problems = hb.validate_bundle(cube)
+    assert [p.cls for p in problems] == ["pieces"], problems
+    assert "piece 123" in problems[0].message and "not convex" in problems[0].message
+
+
+def _time_validate(bundle: Path) -> tuple[float, float]:
+    """(wall seconds, peak RSS MiB) of `hbake validate` in a fresh process."""
+    code = ("import resource, sys, time; from hbake.bundle import validate_bundle; "
+            "t = time.perf_counter(); p = validate_bundle(sys.argv[1]); "
+            "dt = time.perf_counter() - t; "
+            "print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, len(p))")
+    r = subprocess.run([sys.executable, "-c", code, str(bundle)], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    dt, rss, nprob = r.stdout.split()
+    assert nprob == "0", hb.validate_bundle(bundle)
+    return float(dt), float(rss)
+
+
+def test_validate_time_is_linear_in_many_small_pieces(cube):
+    """A 2 MB pieces.ply of small pieces: the convexity check used to build one
+    vertices x faces matrix per piece in a Python loop (and, before that, one for all)."""
+    size = write_pieces(cube, many_small_pieces(6000))
+    assert size > 1.5e6
+    dt, rss = _time_validate(cube)
+    print(f"{size / 1e6:.1f} MB of pieces: {dt:.2f} s, peak RSS {rss:.0f} MiB")
+    assert dt < 2.0 and rss < 400
+
+
+def test_validate_time_is_bounded_for_one_huge_piece(cube):
+    """One piece of 40,000 vertices (2 MB): refused by the vertex limit at once, instead
+    of a 40,000 x 80,000 distance matrix (25 GB)."""
+    rng = np.random.default_rng(3)
+    size = write_pieces(cube, [_sphere_hull(40_000, rng, (0.05, 0.05, 0.05), 0.04)])
+    assert size > 1.5e6
+    t = time.perf_counter()
+    problems = hb.validate_bundle(cube)
+    dt = time.perf_counter() - t
+    assert [p.cls for p in problems] == ["pieces"] and "more than the limit 1024" in problems[0].message
+    assert dt < 2.0
+
+
+def _set_atlas_size(bundle: Path, w: int, h: int) -> None:
+    m = json.loads((bundle / "manifest.json").read_text())
+    m["atlas"]["width"] = m["files"]["atlas"]["width"] = w
+    m["atlas"]["height"] = m["files"]["atlas"]["height"] = h
+    _rehash(bundle, m)
+
+
+@pytest.mark.parametrize("w, h", [(8193, 16), (16, 100_000), (8192, 4096), (10**30, 1)])
+def test_validate_refuses_an_atlas_over_the_limit_before_decoding(cube, w, h):
+    _set_atlas_size(cube, w, h)
+    line = _validate(cube, "atlas", "limit")
+    assert f"{w}x{h}" in line
+
+
+@pytest.mark.parametrize("option, rc", [("8193", EXIT_USAGE), ("8192x4096", EXIT_USAGE),
+                                        ("4096x8192", EXIT_USAGE)])
+def test_bake_atlas_size_option_limit(tmp_path, option, rc):
+    src = tmp_path / "t.obj"
+    src.write_text("v 0 0 0\nv 0.01 0 0\nv 0 0.01 0\nv 0 0 0.01\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n")
+    r = _run(["bake", str(src), "-o", str(tmp_path / "x.hbundle"), "--atlas-size", option], tmp_path)
+    assert "Traceback" not in r.stderr
+    assert r.returncode == rc, r.stderr
+    assert "8192" in r.stderr or "16,777,216" in r.stderr or "16777216" in r.stderr, r.stderr
+
+
+def test_settings_atlas_limit_is_a_config_error(tmp_path):
+    from hbake.errors import ConfigError
+    from hbake.settings import BakeSettings, ParameterizeSettings
+    with pytest.raises(ConfigError):
+        ParameterizeSettings(atlas_width=8193, atlas_height=16)
+    with pytest.raises(ConfigError, match="16,777,216"):
+        ParameterizeSettings(atlas_width=8192, atlas_height=4096)
+    ParameterizeSettings(atlas_width=8192, atlas_height=2048)
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[parameterize]\natlas_width = 6000\natlas_height = 6000\n")
+    with pytest.raises(ConfigError):
+        BakeSettings.from_toml(cfg)
+    src = tmp_path / "t.obj"
+    src.write_text("v 0 0 0\nv 0.01 0 0\nv 0 0.01 0\nv 0 0 0.01\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n")
+    r = _run(["bake", str(src), "-o", str(tmp_path / "x.hbundle"), "-c", str(cfg)], tmp_path)
+    _one_error_line(r, EXIT_CONFIG, "16,777,216")
+
+
+# --------------------------------------------------------------------------- E: non-regular files
+
+TETRA = "v 0 0 0\nv 0.01 0 0\nv 0 0.01 0\nv 0 0 0.01\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n"
+
+
+@pytest.mark.parametrize("which", ["fifo", "dev_zero"])
+def test_validate_refuses_a_non_regular_manifest(cube, which):
+    m = cube / "manifest.json"
+    m.unlink()
+    if which == "fifo":
+        os.mkfifo(m)
+    else:
+        m.symlink_to("/dev/zero")
+    _validate(cube, "io", "manifest.json", "not a regular file", timeout=30)
+
+
+def test_validate_refuses_a_fifo_in_place_of_a_bundle_file(cube):
+    (cube / "pieces.ply").unlink()
+    os.mkfifo(cube / "pieces.ply")
+    _validate(cube, "io", "pieces.ply", "not a regular file", timeout=30)
+
+
+@pytest.mark.parametrize("which", ["fifo", "dev_zero"])
+def test_bake_refuses_a_non_regular_input(tmp_path, which):
+    src = tmp_path / "in.obj"
+    if which == "fifo":
+        os.mkfifo(src)
+    else:
+        src.symlink_to("/dev/zero")
+    r = _run(["bake", str(src), "-o", str(tmp_path / "x.hbundle")], tmp_path, timeout=30)
+    _one_error_line(r, EXIT_INPUT_MISSING, "in.obj", "not a regular file")
+
+
+def test_bake_refuses_an_input_over_the_size_limit(tmp_path):
+    from hbake.constants import MAX_INPUT_BYTES
+    src = tmp_path / "huge.stl"
+    with open(src, "wb") as fh:        # sparse: no disk, no time
+        fh.truncate(MAX_INPUT_BYTES + 1)
+    t = time.perf_counter()
+    r = _run(["bake", str(src), "-o", str(tmp_path / "x.hbundle")], tmp_path, timeout=60)
+    _one_error_line(r, EXIT_INPUT_INVALID, "huge.stl", "limit")
+    assert time.perf_counter() - t < 20
+
+
+def test_config_fifo_is_a_config_error(tmp_path):
+    cfg = tmp_path / "c.toml"
+    os.mkfifo(cfg)
+    src = tmp_path / "t.obj"
+    src.write_text(TETRA)
+    r = _run(["bake", str(src), "-o", str(tmp_path / "x.hbundle"), "-c", str(cfg)], tmp_path,
+             timeout=30)
+    _one_error_line(r, EXIT_CONFIG, "c.toml", "not a regular file")
+
+
+# --------------------------------------------------------------------------- F: smaller ones
+
+def test_bake_unreadable_input_is_exit_3_in_one_line(tmp_path):
+    """As root, permission bits are bypassed (CAP_DAC_OVERRIDE): drop those capabilities
+    for the child with setpriv, so chmod 000 really makes the file unreadable."""
+    import shutil
+    setpriv = shutil.which("setpriv")
+    if os.geteuid() == 0 and setpriv is None:
+        pytest.skip("needs setpriv to drop root's permission override")
+    src = tmp_path / "locked.obj"
+    src.write_text(TETRA)
+    src.chmod(0)
+    prefix = ([setpriv, "--inh-caps=-dac_override,-dac_read_search",
+               "--bounding-set=-dac_override,-dac_read_search"] if os.geteuid() == 0 else [])
+    r = subprocess.run(prefix + _hbake() + ["bake", str(src), "-o", str(tmp_path / "x.hbundle")],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=60, env=_env())
+    _one_error_line(r, EXIT_INPUT_MISSING, "locked.obj", "cannot read")
+
+
+def test_obj_face_index_zero_is_refused_with_its_line(tmp_path):
+    src = tmp_path / "zero.obj"
+    src.write_text("# one face uses index 0\n" + TETRA.replace("f 1 4 3", "f 0 4 3"))
+    r = _run(["bake", str(src), "-o", str(tmp_path / "x.hbundle")], tmp_path)
+    _one_error_line(r, EXIT_INPUT_INVALID, "zero.obj", "line 9", "index 0")
+
+
+def test_obj_zero_index_scan_ignores_other_tokens():
+    from hbake.load import _OBJ_ZERO_INDEX
+    for ok in (b"f 10 20 30\n", b"f 1/0/1 2 3\n", b"vt 0 0\n", b"v 0 0 0\n", b"f -1 -2 -3\n",
+               b"f 1//0 2//0 3//0\n"):
+        assert _OBJ_ZERO_INDEX.search(ok) is None, ok
+    for bad in (b"f 0 1 2\n", b"f 1 2 0", b"  f\t1 0/3 2\n", b"f 1 2 00\r\n", b"f 1 0//2 3\n"):
+        assert _OBJ_ZERO_INDEX.search(bad) is not None, bad
+
+
+def test_gltf_short_buffer_is_one_clear_line(tmp_path):
+    import struct
+    import trimesh
+    blob = trimesh.creation.icosphere(subdivisions=1, radius=0.02).export(file_type="glb")
+    magic, ver, _ = struct.unpack_from("<III", blob, 0)
+    jlen, jtype = struct.unpack_from("<II", blob, 12)
+    js = blob[20:20 + jlen]
+    blen, btype = struct.unpack_from("<II", blob, 20 + jlen)
+    short = blob[28 + jlen:28 + jlen + blen // 2]
+    short += b"\0" * (-len(short) % 4)
+    out = (struct.pack("<III", magic, ver, 28 + jlen + len(short)) + struct.pack("<II", jlen, jtype)
+           + js + struct.pack("<II", len(short), btype) + short)
+    src = tmp_path / "short.glb"
+    src.write_bytes(out)
+    r = _run(["bake", str(src), "-o", str(tmp_path / "x.hbundle")], tmp_path)
+    line = _one_error_line(r, EXIT_INPUT_INVALID, "short.glb", "shorter than")
+    assert "AssertionError" not in line
+
+
+# --------------------------------------------------------------------------- D: absurd scales
+
+def _scaled_tetra(tmp_path: Path, scale: float, offset: float = 0.0, name: str = "s.obj") -> Path:
+    v = np.array([[0, 0, 0], [0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.01]]) * scale + offset
+    src = tmp_path / name
+    src.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in v.tolist())
+                   + "f 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n")
+    return src
+
+
+@pytest.mark.parametrize("scale, offset, what", [
+    (1e306, 1e308, "beyond the limit"),                 # coordinates of 1e308
+    (1e200, 0.0, "beyond the limit"),
+    (1e100, 0.0, "beyond the limit"),
+    (1e22, 0.0, "beyond the limit"),                    # 1e20 m across
+    (1e17, 0.0, "beyond the limit"),                    # 1e15 m across
+    (1e6, 0.0, "outside"),                              # 1.7e4 m across, within 1e4 m
+    (1e-4, 0.0, "outside"),                             # 1.7 um across
+    (1.0, 50.0, "from the origin"),                     # 1.7 cm at 50 m
+])
+def test_absurd_scales_are_refused_in_the_load_stage(tmp_path, scale, offset, what):
+    if scale == 1e6:
+        src = _scaled_tetra(tmp_path, 1e6, -5000.0)
+    else:
+        src = _scaled_tetra(tmp_path, scale, offset)
+    r = _run(["bake", str(src), "-o", str(tmp_path / "x.hbundle"), "--units", "m", "-q"],
+             tmp_path, timeout=120)
+    _one_error_line(r, EXIT_INPUT_INVALID, "s.obj", what)
+    assert not any(p.name.startswith(".x.hbundle") or p.name == "x.hbundle" for p in tmp_path.iterdir())
+
+
+def test_limits_of_scale_are_accepted_by_load(tmp_path):
+    """Just inside each limit the load stage accepts the mesh."""
+    from hbake.load import load_mesh
+    from hbake.settings import LoadSettings
+    for scale, offset in ((5e5, -4000.0), (2e-3 / 1.7, 0.0), (1.0, 15.0)):
+        src = _scaled_tetra(tmp_path, scale, offset)
+        m = load_mesh(src, LoadSettings(units="m"))
+        assert len(m.faces) == 4
