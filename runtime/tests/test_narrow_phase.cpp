@@ -340,3 +340,27 @@ TEST(NarrowPhase, AdjacencyFromTheTriangleMapAndCutFaces) {
     EXPECT_FALSE(g2->adjacent(0, 1));
   }
 }
+
+// Explicit finite-difference steps are bounded (issue 7 item 7: a lin_step of
+// 1e-300 m silently gave another force): below 100 x 2^-24 x the largest
+// coordinate the float32 atlas makes the difference noise; above 10 % of the
+// smaller part (0.1 rad) it is no derivative. 0 stays automatic.
+TEST(SceneOptionsBounds, FiniteDifferenceStepsAreBounded) {
+  const hrt::Model a = hrt_test::make_box(Vec3(-0.02, -0.02, -0.02), Vec3(0.02, 0.02, 0.02), "a");
+  const hrt::Model b = hrt_test::make_box(Vec3(-0.1, -0.1, -0.02), Vec3(0.1, 0.1, 0.0), "b");
+  auto with = [](double lin, double ang) {
+    hrt::SceneOptions o;
+    o.force.lin_step = lin;
+    o.force.ang_step = ang;
+    return o;
+  };
+  EXPECT_NO_THROW(hrt::Scene({&a, &b}, with(0, 0)));
+  EXPECT_NO_THROW(hrt::Scene({&a, &b}, with(1e-4, 1e-3)));
+  for (double lin : {1e-300, 1e-9, 0.5}) EXPECT_THROW(hrt::Scene({&a, &b}, with(lin, 0)), std::invalid_argument) << lin;
+  for (double ang : {1e-300, 1e-9, 0.5}) EXPECT_THROW(hrt::Scene({&a, &b}, with(0, ang)), std::invalid_argument) << ang;
+  try {
+    hrt::Scene({&a, &b}, with(1e-300, 0));
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("lin_step 1e-300 m is outside"), std::string::npos) << e.what();
+  }
+}

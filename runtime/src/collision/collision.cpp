@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <stdexcept>
 #include <string>
@@ -459,6 +460,50 @@ Scene::Scene(std::vector<const Model*> objects, const SceneOptions& options)
     throw std::invalid_argument("stiffness must be a positive number of N/m");
   if (!(f.lin_step >= 0) || !std::isfinite(f.lin_step) || !(f.ang_step >= 0) || !std::isfinite(f.ang_step))
     throw std::invalid_argument("finite-difference steps must be >= 0 (0 = automatic)");
+  {
+    // Bounds of explicit finite-difference steps (Eq. 7). Below: the atlas
+    // stores object-frame positions in float32, so a height carries a
+    // rounding of up to 2^-24 x the largest coordinate c; a central
+    // difference over 2 s then errs by up to 2^-24 c / s, which stays under
+    // 1 % of a unit gradient only for s >= 100 x 2^-24 c. Above: a step of
+    // more than 10 % of the smaller part (or 0.1 rad) is no derivative of the
+    // local contact any more.
+    double coord = 0.0, diag_min = std::numeric_limits<double>::infinity(), diag_a = 0.0;
+    for (size_t i = 0; i < objects_.size(); ++i) {
+      const Model& m = *objects_[i];
+      for (const Vec3& x : m.vertices) coord = std::max(coord, x.cwiseAbs().maxCoeff());
+      double diag = m.quality.bbox_diagonal;
+      if (!(diag > 0)) {
+        Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+        for (const Vec3& x : m.vertices) {
+          lo = lo.cwiseMin(x);
+          hi = hi.cwiseMax(x);
+        }
+        diag = m.vertices.empty() ? 0.0 : (hi - lo).norm();
+      }
+      diag_min = std::min(diag_min, diag);
+      if (i == 0) diag_a = diag;
+    }
+    const double lin_min = 100.0 * std::ldexp(1.0, -24) * coord;
+    const double lin_max = 0.1 * diag_min;
+    const double ang_min = diag_a > 0 ? lin_min / diag_a : 0.0;
+    const double ang_max = 0.1;
+    char buf[256];
+    if (f.lin_step != 0 && (f.lin_step < lin_min || f.lin_step > lin_max)) {
+      std::snprintf(buf, sizeof buf,
+                    "lin_step %.3g m is outside [%.3g, %.3g] m for these models (0 = one grid texel): below, the "
+                    "float32 atlas positions make the finite differences noise; above, 10 %% of the smaller part",
+                    f.lin_step, lin_min, lin_max);
+      throw std::invalid_argument(buf);
+    }
+    if (f.ang_step != 0 && (f.ang_step < ang_min || f.ang_step > ang_max)) {
+      std::snprintf(buf, sizeof buf,
+                    "ang_step %.3g rad is outside [%.3g, %.3g] rad for these models (0 = matching angle): below, "
+                    "the float32 atlas positions make the finite differences noise",
+                    f.ang_step, ang_min, ang_max);
+      throw std::invalid_argument(buf);
+    }
+  }
   const ClusterOptions& c = options_.cluster;
   if (c.max_patches < 1) throw std::invalid_argument("max_patches must be at least 1");
   if (!(c.max_normal_angle_deg > 0 && c.max_normal_angle_deg <= 180))
