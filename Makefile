@@ -10,7 +10,8 @@ JOBS  ?= $(shell nproc)
 APT_PACKAGES := build-essential cmake pkg-config python3-venv \
   libeigen3-dev libfcl-dev libopenexr-dev nlohmann-json3-dev libcli11-dev \
   libgtest-dev googletest libssl-dev \
-  libegl-mesa0 libgl1-mesa-dri libegl-dev libepoxy-dev
+  libegl-mesa0 libgl1-mesa-dri libegl-dev libepoxy-dev \
+  clang libclang-rt-14-dev
 
 .PHONY: setup apt venv runtime test test-py test-cpp demo bench clean
 
@@ -41,7 +42,7 @@ runtime: apt
 	@mkdir -p $(VENV)/bin
 	ln -sf ../../$(BUILD)/hrt $(VENV)/bin/hrt
 
-test: setup test-cpp test-py
+test: setup test-cpp test-py test-fuzz
 
 test-cpp:
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
@@ -58,3 +59,36 @@ bench: setup
 
 clean:
 	rm -rf build out
+
+# --- libFuzzer target runtime/fuzz (runtime/fuzz/README.md) ---------------
+# Its own build directory, clang with ASan + UBSan + libFuzzer instrumentation
+# (the gcc build in $(BUILD) is untouched). test-fuzz: a deterministic run
+# (fixed seed and count) over a copy of the seed corpus; any crash, sanitizer
+# report, timeout or OOM fails it. fuzz-long: hours of it (HOURS=, FUZZ_JOBS=),
+# with a persistent corpus outside the repository (FUZZ_DIR=).
+FUZZ_BUILD := build/fuzz
+FUZZ_BIN   := $(FUZZ_BUILD)/fuzz/hrt_fuzz_bundle
+FUZZ_RUNS  ?= 20000
+FUZZ_OPTS  := -max_len=131072 -timeout=10 -rss_limit_mb=2048 -dict=$(CURDIR)/runtime/fuzz/bundle.dict -print_final_stats=1
+HOURS      ?= 1
+FUZZ_JOBS  ?= $(JOBS)
+FUZZ_DIR   ?= $(HOME)/.cache/hrt-fuzz
+
+.PHONY: fuzz-build test-fuzz fuzz-long
+
+fuzz-build: apt
+	cmake -S runtime -B $(FUZZ_BUILD) -DCMAKE_CXX_COMPILER=clang++ -DHRT_FUZZ=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
+	cmake --build $(FUZZ_BUILD) -j $(JOBS) --target hrt_fuzz_bundle
+
+test-fuzz: fuzz-build
+	rm -rf $(FUZZ_BUILD)/ci && mkdir -p $(FUZZ_BUILD)/ci/artifacts
+	cp -r $(FUZZ_BUILD)/fuzz/seed_corpus $(FUZZ_BUILD)/ci/corpus
+	$(FUZZ_BIN) -seed=1 -runs=$(FUZZ_RUNS) $(FUZZ_OPTS) -artifact_prefix=$(CURDIR)/$(FUZZ_BUILD)/ci/artifacts/ $(FUZZ_BUILD)/ci/corpus
+
+# FUZZ_JOBS workers for HOURS each (a worker stops at its first finding; its
+# log is $(FUZZ_DIR)/fuzz-N.log, findings in $(FUZZ_DIR)/artifacts).
+fuzz-long: fuzz-build
+	mkdir -p $(FUZZ_DIR)/corpus $(FUZZ_DIR)/artifacts
+	cd $(FUZZ_DIR) && $(CURDIR)/$(FUZZ_BIN) -max_total_time=$$(awk 'BEGIN{print int($(HOURS)*3600)}') \
+	  -jobs=$(FUZZ_JOBS) -workers=$(FUZZ_JOBS) $(FUZZ_OPTS) -artifact_prefix=$(FUZZ_DIR)/artifacts/ \
+	  $(FUZZ_DIR)/corpus $(CURDIR)/$(FUZZ_BUILD)/fuzz/seed_corpus
