@@ -293,6 +293,31 @@ TEST_F(Reliability, AtlasLimitOnManifestAndHeader) {
   }
 }
 
+TEST_F(Reliability, AtlasChecksCostTheTrianglesNotTheirBoundingBoxes) {
+  // 3000 sliver UV triangles across a 1024 x 1024 atlas (a 114 KB coarse.ply):
+  // the texel checks walked each triangle's bounding box, 3e9 texel tests
+  // (seconds); per-row spans make it rows + texels read.
+  content_.faces.assign(3000, content_.faces[0]);
+  content_.uvs.assign(3000, {0.0f, 0.0f, 1.0f, 1.0f, 0.5001f, 0.5f});
+  content_.width = content_.height = 1024;
+  content_.rgba.assign(size_t{1024} * 1024 * 4, 0.0f);
+  content_.manifest["coarse"]["triangles"] = 3000;
+  content_.manifest["atlas"]["width"] = content_.manifest["atlas"]["height"] = 1024;
+  write_bundle(dir_, content_);
+  const auto t0 = std::chrono::steady_clock::now();
+  try {
+    hrt::load_bundle(dir_);
+    ADD_FAILURE();
+  } catch (const BundleError& e) {
+    EXPECT_EQ(e.error_class(), BundleErrorClass::atlas);
+    EXPECT_NE(std::string(e.what()).find("bilinear lookups inside 3000 UV triangles read texels that are neither covered"),
+              std::string::npos)
+        << e.what();
+  }
+  const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_LT(s, 1.0) << "the atlas checks of 3000 slivers took " << s << " s";
+}
+
 // ---- pieces.ply -----------------------------------------------------------------
 
 // A right prism over a regular k-gon (2k vertices, 4k - 4 faces, outward):
@@ -359,11 +384,11 @@ TEST_F(Reliability, PieceFaceLimit) {
 
 // Writes a bundle whose pieces.ply holds `pieces` prisms of 1024 vertices
 // and 2044 faces each (the worst case of the convexity check per byte).
-void many_prism_bundle(const std::string& dir, BundleContent b, int pieces) {
+void many_prism_bundle(const std::string& dir, BundleContent b, int pieces, int sides = 512) {
   b.piece_vertices.assign(static_cast<size_t>(pieces), {});
   b.piece_faces.assign(static_cast<size_t>(pieces), {});
   b.piece_map.assign(static_cast<size_t>(pieces), {});
-  for (int p = 0; p < pieces; ++p) prism(512, 0.005, -0.005, 0.005, b.piece_vertices[p], b.piece_faces[p]);
+  for (int p = 0; p < pieces; ++p) prism(sides, 0.005, -0.005, 0.005, b.piece_vertices[p], b.piece_faces[p]);
   b.manifest["pieces"]["count"] = pieces;
   write_bundle(dir, b);
 }
@@ -379,13 +404,15 @@ TEST_F(Reliability, PiecesCheckIsLinearInTheFile) {
   EXPECT_LT(s, 1.0) << "load + check of a 1 MB pieces.ply took " << s << " s";
 }
 
-// HRT_RELIABILITY_BUNDLE=DIR HRT_RELIABILITY_PIECES=P writes the measurement
-// bundle of docs/input-contract.md (P prisms; 200 = 10 MB) and exits.
+// HRT_RELIABILITY_BUNDLE=DIR HRT_RELIABILITY_PIECES=P [HRT_RELIABILITY_SIDES=K]
+// writes the measurement bundle of docs/input-contract.md: P prisms over a
+// K-gon (default 512: 1024 vertices, 2044 faces; P = 200 is 10 MB).
 TEST(ReliabilityExport, ManyPiecesBundle) {
   const char* dir = std::getenv("HRT_RELIABILITY_BUNDLE");
   if (!dir || !*dir) GTEST_SKIP() << "set HRT_RELIABILITY_BUNDLE=DIR to write the measurement bundle";
   const char* n = std::getenv("HRT_RELIABILITY_PIECES");
-  many_prism_bundle(dir, make_cube(), n && *n ? std::atoi(n) : 200);
+  const char* k = std::getenv("HRT_RELIABILITY_SIDES");
+  many_prism_bundle(dir, make_cube(), n && *n ? std::atoi(n) : 200, k && *k ? std::atoi(k) : 512);
 }
 
 }  // namespace

@@ -62,6 +62,10 @@ using io::FileEntry;
 // W 2^-24 texel, 6e-5 at W = 1024) and the writer may rasterise the unrounded ones.
 constexpr double kCoverageMargin = 1e-3;
 
+// Widening (texels) of the per-row candidate spans of the atlas checks, far
+// above the rounding of their computation (coordinates up to 8192 texels).
+constexpr double kSpanPad = 1e-6;
+
 // The spec's convexity tolerance: 1e-6 * bbox_diagonal + 1e-9 m, with the
 // bounding-box diagonal of the coarse mesh (as hbake.bundle.convexity_tolerance).
 constexpr double kConvexRel = 1e-6;
@@ -215,7 +219,28 @@ void footprint(const std::array<Vec2f, 3>& uv, int W, int H, Visit&& visit) {
   }
   for (long j = j0; j <= j1; ++j) {
     if (j < ymin - 1 || j > ymax + 1) continue;
-    for (long i = i0; i <= i1; ++i) {
+    // Candidates of this row: the x-extent of the triangle within the band
+    // [j-1, j+1] (widened by kSpanPad), so the work per triangle is its rows
+    // plus the texels it reads, not its bounding box (a sliver UV triangle
+    // across the atlas once cost W x H tests). A superset of the texels the
+    // exact test below keeps, so the result is unchanged.
+    const double ylo = j - 1 - kSpanPad, yhi = j + 1 + kSpanPad;
+    double xa = HUGE_VAL, xb = -HUGE_VAL;
+    for (int k = 0; k < 3; ++k) {
+      if (py[k] >= ylo && py[k] <= yhi) xa = std::min(xa, px[k]), xb = std::max(xb, px[k]);
+      const int k1 = (k + 1) % 3;
+      if (py[k] == py[k1]) continue;
+      for (const double yl : {ylo, yhi}) {
+        if ((py[k] - yl) * (py[k1] - yl) > 0) continue;
+        const double x = px[k] + (yl - py[k]) / (py[k1] - py[k]) * (px[k1] - px[k]);
+        xa = std::min(xa, x);
+        xb = std::max(xb, x);
+      }
+    }
+    if (!(xa <= xb)) continue;
+    const long ia = std::max<long>(i0, static_cast<long>(std::floor(xa - 1 - kSpanPad)) - 1);
+    const long ib = std::min<long>(i1, static_cast<long>(std::ceil(xb + 1 + kSpanPad)) + 1);
+    for (long i = ia; i <= ib; ++i) {
       if (i < xmin - 1 || i > xmax + 1) continue;
       bool keep = true;
       for (int k = 0; k < 3 && keep; ++k) {
@@ -339,7 +364,22 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
     const int j0 = std::max(0, static_cast<int>(std::ceil(y0 - 0.5))), j1 = std::min(H - 1, static_cast<int>(std::floor(y1 - 0.5)));
     for (int j = j0; j <= j1; ++j) {
       const double cy = j + 0.5;
-      for (int i = i0; i <= i1; ++i) {
+      // Candidates of this row: the centres cx where each edge's signed
+      // distance is >= -margin (a linear bound on cx per edge, widened by
+      // kSpanPad), so the work is the triangle's rows plus its texels, not its
+      // bounding box; the exact test below decides as before.
+      double lo = i0 + 0.5, hi = i1 + 0.5;
+      for (int k = 0; k < 3 && lo <= hi; ++k) {
+        // sgn (ex (cy - py) - ey (cx - px)) >= -margin el  <=>  a (cx - px) >= b
+        const double a = -sgn * ey[k], b = -kCoverageMargin * el[k] - sgn * ex[k] * (cy - py[k]);
+        if (a > 0) lo = std::max(lo, px[k] + b / a - kSpanPad);
+        else if (a < 0) hi = std::min(hi, px[k] + b / a + kSpanPad);
+        else if (b > kSpanPad * el[k]) hi = lo - 1;  // parallel edge, row wholly outside
+      }
+      if (!(lo <= hi)) continue;
+      const int ia = std::max(i0, static_cast<int>(std::ceil(lo - 0.5)));
+      const int ib = std::min(i1, static_cast<int>(std::floor(hi - 0.5)));
+      for (int i = ia; i <= ib; ++i) {
         const double cx = i + 0.5;
         double d = HUGE_VAL;  // signed distance (texels) of the centre inside the nearest edge
         for (int k = 0; k < 3; ++k) d = std::min(d, sgn * (ex[k] * (cy - py[k]) - ey[k] * (cx - px[k])) / el[k]);
