@@ -682,6 +682,53 @@ def _looks_like_bundle(path: Path) -> bool:
         return False
 
 
+#: ``.NAME.<pid>.<8 hex>.tmp`` (a bundle being written) and ``.old`` (one being replaced).
+_TEMP_NAME = re.compile(r"\.(?P<name>.+)\.(?P<pid>[0-9]{1,10})\.[0-9a-f]{8}\.(?P<kind>tmp|old)")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:           # EPERM: it exists
+        return True
+    return True
+
+
+def remove_stale_temporaries(path: str | os.PathLike) -> list[str]:
+    """Remove the temporary siblings of the bundle ``path`` that write_bundle left in a
+    process that no longer runs (killed with SIGKILL, a crash, a power cut); put back a
+    bundle that such a process had moved aside to replace it. Temporaries of running
+    processes are left alone. Returns one message per thing done, for warnings."""
+    out = Path(os.path.abspath(os.fspath(path)))
+    done: list[str] = []
+    try:
+        entries = [e for e in out.parent.iterdir() if e.name.startswith(f".{out.name}.")]
+    except OSError:
+        return done
+    for entry in sorted(entries):
+        m = _TEMP_NAME.fullmatch(entry.name)
+        if m is None or m["name"] != out.name:
+            continue
+        pid = int(m["pid"])
+        if pid == os.getpid() or _pid_alive(pid):
+            continue
+        try:
+            if m["kind"] == "old" and not (out.exists() or out.is_symlink()):
+                os.rename(entry, out)
+                done.append(f"restored {out.name} from {entry.name}, moved aside by an earlier "
+                            f"bake (process {pid}) that did not finish")
+                continue
+            shutil.rmtree(entry)
+            done.append(f"removed {entry.name}, left by an earlier bake (process {pid}) "
+                        "that did not finish")
+        except OSError as e:
+            done.append(f"cannot remove {entry.name}, left by an earlier bake (process {pid}): "
+                        f"{e.strerror}")
+    return done
+
+
 def write_bundle(path: str | os.PathLike, data: BundleData, *, force: bool = False,
                  compression: str = "zip") -> dict:
     """Write ``data`` as a bundle directory at ``path``; return the final manifest.

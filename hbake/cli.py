@@ -89,19 +89,40 @@ def bake_command(input, output, config, sets, method, units, target_faces, atlas
     Exit codes: 0 ok, 1 internal error, 2 bad option, 3 input missing, 4 input invalid,
     5 output exists, 6 output not writable, 7 bake failed, 8 bad config, 130 interrupted.
     """
+    # SIGINT and SIGTERM both end the bake cleanly. SIGINT is set explicitly because a
+    # shell starts background jobs with it ignored. The bake itself runs in a forked
+    # child (hbake.guard): this process stays able to react while a native library
+    # holds the GIL, kills the child on a signal and removes its temporary bundle.
+    previous = {sig: signal.signal(sig, _raise_interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        try:
+            settings = build_settings(config, sets, method=method, units=units,
+                                      target_faces=target_faces, atlas_size=atlas_size,
+                                      gutter=gutter, seed=seed, samples=samples)
+            if report is not None:
+                _check_report_path(report)
+        except HbakeError as exc:
+            click.echo(f"hbake: error: {exc}", err=True)
+            sys.exit(exc.exit_code)
+        from hbake.guard import run_guarded
+
+        code = run_guarded(lambda: _bake_here(input, output, settings, report, force, quiet),
+                           output, report)
+    except KeyboardInterrupt:
+        click.echo("hbake: interrupted", err=True)
+        sys.exit(EXIT_INTERRUPTED)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    sys.exit(code)
+
+
+def _bake_here(input, output, settings, report, force, quiet) -> int:
+    """The bake in this process; returns the exit code (messages already printed)."""
     from hbake.progress import Progress
 
-    # SIGINT and SIGTERM both end the bake cleanly (KeyboardInterrupt unwinds through
-    # write_bundle, which removes its temporary directory). SIGINT is set explicitly
-    # because a shell starts background jobs with it ignored.
-    previous = {sig: signal.signal(sig, _raise_interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
     progress = None
     try:
-        settings = build_settings(config, sets, method=method, units=units,
-                                  target_faces=target_faces, atlas_size=atlas_size,
-                                  gutter=gutter, seed=seed, samples=samples)
-        if report is not None:
-            _check_report_path(report)
         from hbake.pipeline import bake
 
         progress = Progress(quiet=quiet)
@@ -111,16 +132,17 @@ def bake_command(input, output, config, sets, method, units, target_faces, atlas
             _write_json(report, result)
         if not quiet:
             print_summary(result)
+        return 0
     except HbakeError as exc:
         if progress is not None:
             progress.close()
         click.echo(f"hbake: error: {exc}", err=True)
-        sys.exit(exc.exit_code)
+        return exc.exit_code
     except KeyboardInterrupt:
         if progress is not None:
             progress.close()
         click.echo("hbake: interrupted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
+        return EXIT_INTERRUPTED
     except Exception as exc:  # a bug, or a library failing in a way we do not know yet
         if progress is not None:
             progress.close()
@@ -128,10 +150,7 @@ def bake_command(input, output, config, sets, method, units, target_faces, atlas
             raise
         click.echo(f"hbake: internal error: {type(exc).__name__}: {exc} "
                    f"(set HBAKE_DEBUG=1 for a traceback; please report it)", err=True)
-        sys.exit(EXIT_INTERNAL)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        return EXIT_INTERNAL
 
 
 def _raise_interrupt(signum, frame):

@@ -30,7 +30,7 @@ import numpy as np
 
 from hbake import __version__
 from hbake.atlas import bake_atlas
-from hbake.bundle import BundleData, write_bundle
+from hbake.bundle import BundleData, remove_stale_temporaries, write_bundle
 from hbake.decompose import decompose
 from hbake.errors import (EXIT_USAGE, ConfigError, HbakeError, OutputExistsError,
                           OutputUnwritableError)
@@ -94,6 +94,10 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
 
     def warn(msg: str) -> None:
         warnings.append(msg)
+        progress.warn(msg)
+
+    # Said on stderr only: the manifest describes the bake, not the output directory.
+    for msg in remove_stale_temporaries(output):
         progress.warn(msg)
 
     with progress.stage("load"):

@@ -188,33 +188,54 @@ def big_mesh(tmp_path_factory) -> Path:
     return path
 
 
-#: Seconds a bake may take to stop after SIGINT/SIGTERM. Python handles a signal
-#: between bytecodes, so a long call into a C library delays it; 60 s is generous even
-#: on a loaded 2-core machine (about 2 s measured when idle).
+#: Seconds to wait for a bake to stop after SIGINT/SIGTERM before dumping where it is
+#: stuck, and the time it must have stopped in. The bake runs in a forked child that
+#: the hbake process kills on a signal (hbake/guard.py), so even a native call that
+#: holds the GIL cannot delay it; 5 s leaves room for a loaded 2-core machine.
 STOP_TIMEOUT = 60
+STOP_WITHIN = 5.0
+
+
+def _family(pid: int) -> list[int]:
+    """``pid`` and its descendants (the bake runs in a child of the hbake process)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        try:
+            for task in os.listdir(f"/proc/{p}/task"):
+                todo += [int(c) for c in Path(f"/proc/{p}/task/{task}/children").read_text().split()]
+        except OSError:
+            pass
+    return out
 
 
 def _wait_until_open(pid: int, path: Path, timeout: float) -> bool:
-    """Poll /proc until process ``pid`` has ``path`` open (it has started reading it)."""
+    """Poll /proc until process ``pid`` or a child of it has ``path`` open (it has
+    started reading it)."""
     target = str(path.resolve())
     end = time.monotonic() + timeout
-    fd_dir = Path(f"/proc/{pid}/fd")
     while time.monotonic() < end:
-        try:
-            for fd in os.listdir(fd_dir):
-                try:
-                    if os.readlink(fd_dir / fd) == target:
-                        return True
-                except OSError:
-                    pass
-        except OSError:
+        if not Path(f"/proc/{pid}").exists():
             return False
+        for p in _family(pid):
+            fd_dir = Path(f"/proc/{p}/fd")
+            try:
+                for fd in os.listdir(fd_dir):
+                    try:
+                        if os.readlink(fd_dir / fd) == target:
+                            return True
+                    except OSError:
+                        pass
+            except OSError:
+                pass
         time.sleep(0.002)
     return False
 
 
 @pytest.mark.parametrize("sig, extra_delay", [
     (signal.SIGINT, 0.0),   # while loading the input
+    (signal.SIGINT, 1.5),   # 1-2 s in: simplification (pymeshlab)
     (signal.SIGINT, 2.0),   # later in the bake
     (signal.SIGTERM, 2.0),  # a pipeline's kill: same clean exit
 ])
@@ -230,8 +251,10 @@ def test_interrupt_during_bake(tmp_path, big_mesh, sig, extra_delay):
                                         "--units", "m"],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=env)
+    family = []
     try:
         started = _wait_until_open(proc.pid, big_mesh, timeout=60)
+        family = _family(proc.pid)
         assert started or proc.poll() is None, "the bake never opened its input"
         time.sleep(extra_delay)
         assert proc.poll() is None, (
@@ -250,7 +273,12 @@ def test_interrupt_during_bake(tmp_path, big_mesh, sig, extra_delay):
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
+    time.sleep(0.2)
+    survivors = [p for p in family if Path(f"/proc/{p}").exists()
+                 and "Z" not in Path(f"/proc/{p}/stat").read_text().split(")")[-1][:3]]
+    assert survivors == [], f"processes of the bake still run after {sig.name}: {survivors}"
     _check_failure(proc.returncode, stdout, stderr, EXIT_INTERRUPTED, [])
     assert "interrupt" in stderr.lower() or "signal" in stderr.lower(), stderr
     assert _snapshot(out) == [], "the interrupted bake left files behind"
+    assert stopped_after < STOP_WITHIN, f"{sig.name}: stopped {stopped_after:.2f} s after the signal"
     print(f"{sig.name}: stopped {stopped_after:.2f} s after the signal")

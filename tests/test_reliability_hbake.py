@@ -416,3 +416,117 @@ def test_limits_of_scale_are_accepted_by_load(tmp_path):
         src = _scaled_tetra(tmp_path, scale, offset)
         m = load_mesh(src, LoadSettings(units="m"))
         assert len(m.faces) == 4
+
+
+# --------------------------------------------------------------------------- D: signals, native output
+
+def _patched_env(tmp_path: Path, code: str) -> dict:
+    """An environment whose interpreter runs ``code`` at start-up (sitecustomize), to
+    stand in for a native stage that misbehaves."""
+    d = tmp_path / "site"
+    d.mkdir(exist_ok=True)
+    (d / "sitecustomize.py").write_text(code)
+    env = _env()
+    env["PYTHONPATH"] = str(d) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+_NATIVE_STAGE = '''
+import ctypes, os
+import hbake.pipeline as _p
+_orig = _p.parameterize
+def parameterize(*a, **k):
+    {body}
+    return _orig(*a, **k)
+_p.parameterize = parameterize
+'''
+
+
+def test_native_chatter_stays_off_the_terminal(tmp_path):
+    """xatlas prints ASSERT lines with printf, CoACD and MeshLab log to fd 1/2: with -q
+    nothing but hbake's own lines may reach the terminal."""
+    body = ('os.write(1, b"NATIVE-STDOUT\\\\n"); os.write(2, b"NATIVE-STDERR\\\\n"); '
+            'ctypes.CDLL(None).printf(b"NATIVE-PRINTF %d\\\\n", 7)')
+    env = _patched_env(tmp_path, _NATIVE_STAGE.format(body=body))
+    src = tmp_path / "t.obj"
+    src.write_text(TETRA)
+    r = subprocess.run(_hbake() + ["bake", str(src), "-o", str(tmp_path / "t.hbundle"), "-q"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=180, env=env)
+    assert r.returncode == 0, r.stderr
+    assert "NATIVE" not in r.stdout + r.stderr, (r.stdout, r.stderr)
+    assert r.stdout == "" and r.stderr == ""
+    # HBAKE_DEBUG=1 forwards it
+    env["HBAKE_DEBUG"] = "1"
+    r = subprocess.run(_hbake() + ["bake", str(src), "-o", str(tmp_path / "t.hbundle"), "-q", "-f"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=180, env=env)
+    assert r.returncode == 0 and "NATIVE-STDERR" in r.stderr, r.stderr
+
+
+def test_signal_during_a_long_native_call(tmp_path):
+    """A native stage that runs for minutes in one C call, like xatlas spinning on a normal it
+    cannot normalise (here: 200 M rounds of PBKDF2, one C call of about a minute that
+    never looks at signals): SIGINT and SIGTERM must still end the bake with 130
+    within 5 s, leaving nothing behind."""
+    env = _patched_env(tmp_path, _NATIVE_STAGE.format(
+        body='open(os.environ["HB_MARK"], "w").close(); import hashlib; '
+             'hashlib.pbkdf2_hmac("sha256", b"x", b"salt", 200_000_000)'))
+    src = tmp_path / "t.obj"
+    src.write_text(TETRA)
+    out = tmp_path / "out"
+    out.mkdir()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        mark = tmp_path / f"in-native-{sig.name}"
+        env["HB_MARK"] = str(mark)
+        proc = subprocess.Popen(_hbake() + ["bake", str(src), "-o", str(out / "t.hbundle")],
+                                cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, env=env)
+        try:
+            end = time.monotonic() + 120
+            while not mark.exists() and time.monotonic() < end and proc.poll() is None:
+                time.sleep(0.05)
+            assert mark.exists(), proc.communicate()[1]
+            time.sleep(1.0)
+            proc.send_signal(sig)
+            t = time.monotonic()
+            try:
+                _, stderr = proc.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                pytest.fail(f"still running 30 s after {sig.name}")
+            dt = time.monotonic() - t
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+        assert proc.returncode == EXIT_INTERRUPTED, stderr
+        assert "Traceback" not in stderr
+        assert [ln for ln in stderr.splitlines() if ln.strip()][-1] == "hbake: interrupted", stderr
+        assert dt < 5, f"{sig.name}: stopped after {dt:.1f} s"
+        assert list(out.iterdir()) == []
+
+
+def _dead_pid() -> int:
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+def test_stale_temporaries_of_dead_bakes_are_removed(tmp_path):
+    """A bake killed with SIGKILL in its write stage leaves .NAME.hbundle.PID.HEX.tmp;
+    the next bake of the same output removes it (with a warning) when PID is gone, and
+    leaves the temporaries of live processes alone."""
+    src = tmp_path / "t.obj"
+    src.write_text(TETRA)
+    dead = _dead_pid()
+    stale = tmp_path / f".t.hbundle.{dead}.deadbeef.tmp"
+    stale.mkdir()
+    (stale / "atlas.exr").write_bytes(b"half written")
+    live = tmp_path / f".t.hbundle.{os.getpid()}.cafebabe.tmp"
+    live.mkdir()
+    other = tmp_path / f".other.hbundle.{dead}.deadbeef.tmp"
+    other.mkdir()
+    r = _run(["bake", str(src), "-o", str(tmp_path / "t.hbundle")], tmp_path, timeout=180)
+    assert r.returncode == 0, r.stderr
+    assert not stale.exists() and live.exists() and other.exists()
+    assert stale.name in r.stderr and "removed" in r.stderr
+    assert (tmp_path / "t.hbundle" / "manifest.json").is_file()
+    assert stale.name not in (tmp_path / "t.hbundle" / "manifest.json").read_text()
