@@ -66,6 +66,13 @@ constexpr double kCoverageMargin = 1e-3;
 // above the rounding of their computation (coordinates up to 8192 texels).
 constexpr double kSpanPad = 1e-6;
 
+// Work bound of the atlas's per-triangle checks: rows and candidate texels
+// examined, at most this many per texel of the atlas plus per triangle
+// (docs/input-contract.md). Bounds their cost by the atlas's own size and
+// the file's, whatever the UV triangles.
+constexpr uint64_t kWorkPerTexel = 16;
+constexpr uint64_t kWorkPerTriangle = 64;
+
 // The spec's convexity tolerance: 1e-6 * bbox_diagonal + 1e-9 m, with the
 // bounding-box diagonal of the coarse mesh (as hbake.bundle.convexity_tolerance).
 constexpr double kConvexRel = 1e-6;
@@ -189,8 +196,9 @@ void load_coarse(Model& model, const io::CoarsePly& ply, const io::ManifestInfo&
 // iff the triangle meets the closed square [i-1, i+1] x [j-1, j+1]; tested by
 // separating axes (the two box axes and the three edge normals), as
 // hbake.bundle._footprint_texels does.
+// `work` counts the rows and candidate texels examined (see kWorkPerTexel).
 template <typename Visit>
-void footprint(const std::array<Vec2f, 3>& uv, int W, int H, Visit&& visit) {
+void footprint(const std::array<Vec2f, 3>& uv, int W, int H, uint64_t& work, Visit&& visit) {
   double px[3], py[3];
   for (int k = 0; k < 3; ++k) {
     px[k] = static_cast<double>(uv[k].x()) * W - 0.5;
@@ -219,6 +227,7 @@ void footprint(const std::array<Vec2f, 3>& uv, int W, int H, Visit&& visit) {
   }
   for (long j = j0; j <= j1; ++j) {
     if (j < ymin - 1 || j > ymax + 1) continue;
+    ++work;
     // Candidates of this row: the x-extent of the triangle within the band
     // [j-1, j+1] (widened by kSpanPad), so the work per triangle is its rows
     // plus the texels it reads, not its bounding box (a sliver UV triangle
@@ -240,6 +249,7 @@ void footprint(const std::array<Vec2f, 3>& uv, int W, int H, Visit&& visit) {
     if (!(xa <= xb)) continue;
     const long ia = std::max<long>(i0, static_cast<long>(std::floor(xa - 1 - kSpanPad)) - 1);
     const long ib = std::min<long>(i1, static_cast<long>(std::ceil(xb + 1 + kSpanPad)) + 1);
+    if (ib >= ia) work += static_cast<uint64_t>(ib - ia + 1);
     for (long i = ia; i <= ib; ++i) {
       if (i < xmin - 1 || i > xmax + 1) continue;
       bool keep = true;
@@ -300,6 +310,21 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
       for (int i = 0; i < W; ++i) cnt[i] -= rows[at(i, j - g - 1)];
     for (int i = 0; i < W; ++i) filled[at(i, j)] = cnt[i] > 0;
   }
+  // Work bound of the two per-triangle passes below (rows and candidate
+  // texels examined). A valid atlas's UV triangles do not overlap, so their
+  // footprints cover the atlas about once (1.2-2.8 W H on the golden and
+  // benchmark bundles, counting whole bounding boxes): overlapping copies or
+  // slivers crossing the atlas, which no baker writes, are refused before
+  // they cost W H per triangle.
+  const uint64_t work_limit = kWorkPerTexel * npx + kWorkPerTriangle * model.faces.size();
+  uint64_t work = 0;
+  auto check_work = [&]() {
+    if (work > work_limit) {
+      fail("the UV triangles need more than " + std::to_string(work_limit) + " texel tests (" + std::to_string(kWorkPerTexel) +
+           " per texel of the atlas + " + std::to_string(kWorkPerTriangle) +
+           " per triangle): UV triangles overlap or are slivers across the atlas");
+    }
+  };
   // Footprints of the UV triangles: every texel read must be finite and filled.
   std::vector<uint8_t> read(npx, 0);
   First nonfinite_tris, unfilled_tris;
@@ -307,7 +332,7 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
   for (size_t f = 0; f < model.faces.size(); ++f) {
     size_t nonfinite = 0, unfilled = 0;
     int ni = 0, nj = 0, ui = 0, uj = 0;
-    footprint(model.uvs[f], W, H, [&](int i, int j) {
+    footprint(model.uvs[f], W, H, work, [&](int i, int j) {
       const size_t k = at(i, j);
       read[k] = 1;
       if (!finite[k] && nonfinite++ == 0) ni = i, nj = j;
@@ -321,6 +346,7 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
       if (!unfilled_tris) unfilled_example = "triangle " + s(f) + " reads " + s(unfilled) + ", e.g. " + texel_str(ui, uj);
       unfilled_tris.add(f);
     }
+    check_work();
   }
   if (nonfinite_tris) {
     fail("bilinear lookups inside " + count_of(nonfinite_tris.count, "UV triangle") + " read non-finite texels: " + nonfinite_example);
@@ -376,9 +402,11 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
         else if (a < 0) hi = std::min(hi, px[k] + b / a + kSpanPad);
         else if (b > kSpanPad * el[k]) hi = lo - 1;  // parallel edge, row wholly outside
       }
+      ++work;
       if (!(lo <= hi)) continue;
       const int ia = std::max(i0, static_cast<int>(std::ceil(lo - 0.5)));
       const int ib = std::min(i1, static_cast<int>(std::floor(hi - 0.5)));
+      if (ib >= ia) work += static_cast<uint64_t>(ib - ia + 1);
       for (int i = ia; i <= ib; ++i) {
         const double cx = i + 0.5;
         double d = HUGE_VAL;  // signed distance (texels) of the centre inside the nearest edge
@@ -391,6 +419,7 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
         }
       }
     }
+    check_work();
   }
   for (int j = 0; j < H; ++j) {
     for (int i = 0; i < W; ++i) {
