@@ -817,6 +817,8 @@ MAX_PIECE_VERTICES = 1024
 #: Plane tests per batch of the convexity check: the (faces x vertices) distance
 #: matrices of a batch take 8 bytes per test, twice (8 MiB x 2 at 2^20).
 _CONVEX_BATCH = 1 << 20
+#: Faces per chunk of pieces checked together (bounded temporaries, ~100 bytes a face).
+_CHUNK_FACES = 1 << 17
 
 
 def _piece_invariants(v, f, vp, fp, vstart, fstart, check, tol):
@@ -925,21 +927,42 @@ def _convexity(v, f, vstart, fstart, pieces, tol):
 
 def _convex_one(v, f, k, vstart, fstart, tol):
     pv = v[vstart[k]:vstart[k + 1]]
-    ref = pv[0]
+    ref = 0.5 * (pv.min(axis=0) + pv.max(axis=0))
     pts = pv - ref
     pf = f[fstart[k]:fstart[k + 1]].astype(np.int64)
+    # A float32 pass (one matrix product with the plane offset folded in, half the
+    # memory traffic of float64) finds the faces that may fail; only those are redone
+    # in float64, so the verdict is the float64 one. Its error is below
+    # bound = 16 u ext (u = 2^-24: rounding of the inputs and of a 4-term dot product,
+    # positions taken from the piece's centre); when 2 bound < tol, a face that fails
+    # in float64 has a float32 maximum above tol - bound, and a face whose vertices lie
+    # on or behind its plane does not.
+    ext = float(np.abs(pts).max())
+    bound = 16 * ext * 2.0 ** -24
+    exact32 = 2 * bound < tol
+    margin = bound
+    pts4 = np.hstack([pts, np.ones((len(pts), 1))]).astype(np.float32).T.copy()
     chunk = max(1, _CONVEX_BATCH // len(pv))
     best = (-np.inf, 0, 0)
     for s in range(0, len(pf), chunk):
         tri = v[pf[s:s + chunk]] - ref
         nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-        dist = nrm @ pts.T
-        dist -= np.einsum("fk,fk->f", nrm, tri[:, 0])[:, None]
+        off = np.einsum("fk,fk->f", nrm, tri[:, 0])
+        if exact32:
+            plane = np.hstack([nrm, -off[:, None]]).astype(np.float32)
+            rough = (plane @ pts4).max(axis=1)
+            sel = np.flatnonzero(rough > tol - margin)
+            if len(sel) == 0:
+                continue
+        else:
+            sel = np.arange(len(nrm))
+        dist = nrm[sel] @ pts.T
+        dist -= off[sel][:, None]
         a = int(np.argmax(dist))
         fi, vi = divmod(a, len(pv))
         if dist[fi, vi] > best[0]:
-            best = (float(dist[fi, vi]), s + fi, vi)
+            best = (float(dist[fi, vi]), s + int(sel[fi]), vi)
     return (k, best[0], best[1], best[2]) if best[0] > tol else None
 
 
@@ -1335,8 +1358,22 @@ class _Checker:
         big = [(int(k), int(nv[k])) for k in np.flatnonzero(big_mask)]
         open_, inward, nonconvex, degen = [], [], [], []
         if self.invariants:
-            open_, degen, inward, nonconvex = _piece_invariants(
-                v, f, vp, fp, vstart, fstart, ~small_mask & ~big_mask, tol)
+            # in chunks of whole pieces, so the temporaries stay bounded (_CHUNK_FACES)
+            check = ~small_mask & ~big_mask
+            k0 = 0
+            while k0 < p:
+                k1 = int(np.searchsorted(fstart, fstart[k0] + _CHUNK_FACES, side="right")) - 1
+                k1 = min(max(k1, k0 + 1), p)
+                vs, ve, fs, fe = vstart[k0], vstart[k1], fstart[k0], fstart[k1]
+                o, d, i, c = _piece_invariants(
+                    v[vs:ve], f[fs:fe].astype(np.int64) - vs, vp[vs:ve].astype(np.int64) - k0,
+                    fp[fs:fe].astype(np.int64) - k0, vstart[k0:k1 + 1] - vs,
+                    fstart[k0:k1 + 1] - fs, check[k0:k1], tol)
+                open_ += [k + k0 for k in o]
+                degen += [(k + k0, x) for k, x in d]
+                inward += [(k + k0, x) for k, x in i]
+                nonconvex += [(x[0] + k0,) + tuple(x[1:]) for x in c]
+                k0 = k1
         if small:
             add(f"{name}: {_n(len(small), 'piece')} with fewer than 4 vertices or 4 faces: "
                 + _examples(small, lambda x: f"piece {x[0]} has {x[1]} vertices, {x[2]} faces"))
@@ -1404,11 +1441,12 @@ class _Checker:
         pv, _, pf, _, maps, vstart, fstart = self.pieces
         p = len(maps)
         manifest = self.manifest
+        _, _, _, fpid, _, _, _ = self.pieces
+        local = (pf.astype(np.int64) - vstart[fpid][:, None]).astype(np.uint32)
         return Bundle(
             coarse_vertices=v, coarse_faces=f, coarse_uvs=uv, atlas=self.atlas,
             piece_vertices=[pv[vstart[k]:vstart[k + 1]] for k in range(p)],
-            piece_faces=[(pf[fstart[k]:fstart[k + 1]].astype(np.int64) - vstart[k]).astype(np.uint32)
-                         for k in range(p)],
+            piece_faces=[local[fstart[k]:fstart[k + 1]] for k in range(p)],
             piece_coarse_faces=list(maps), manifest=manifest, path=self.path)
 
 

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hbake.bundle import MAX_PIECE_VERTICES
 from hbake.errors import BakeFailedError
 from hbake.geometry import is_closed
 from hbake.mass import convex_hull_mesh
@@ -65,42 +66,47 @@ def decompose(coarse_vertices: np.ndarray, coarse_faces: np.ndarray,
     if mode == "auto":
         mode = "off" if is_closed(SF) else "on"
     coacd.set_log_level("error")
-    try:
-        parts = coacd.run_coacd(
-            coacd.Mesh(SV, SF),
-            threshold=float(settings.threshold),
-            max_convex_hull=int(settings.max_pieces),
-            preprocess_mode=mode,
-            preprocess_resolution=int(settings.preprocess_resolution),
-            resolution=int(settings.resolution),
-            mcts_nodes=int(settings.mcts_nodes),
-            mcts_iterations=int(settings.mcts_iterations),
-            mcts_max_depth=int(settings.mcts_max_depth),
-            pca=False,
-            merge=True,
-            decimate=False,
-            max_ch_vertex=256,            # unused: only applies with decimate=True
-            extrude=False,
-            apx_mode="ch",
-            seed=int(seed),
-        )
-    except Exception as exc:  # CoACD raises RuntimeError on meshes it cannot process
-        raise BakeFailedError(f"convex decomposition (CoACD) failed: {exc}") from None
 
-    pv, pf = [], []
-    dropped = 0
-    for verts, _faces in parts:
-        pts = np.asarray(verts, dtype=np.float32).astype(np.float64)
+    def run(decimate: bool):
         try:
-            hv, hf = convex_hull_mesh(pts)
-        except BakeFailedError:
-            dropped += 1
-            continue
-        if len(hv) < 4 or len(hf) < 4:
-            dropped += 1
-            continue
-        pv.append(hv)
-        pf.append(hf)
+            return coacd.run_coacd(
+                coacd.Mesh(SV, SF),
+                threshold=float(settings.threshold),
+                max_convex_hull=int(settings.max_pieces),
+                preprocess_mode=mode,
+                preprocess_resolution=int(settings.preprocess_resolution),
+                resolution=int(settings.resolution),
+                mcts_nodes=int(settings.mcts_nodes),
+                mcts_iterations=int(settings.mcts_iterations),
+                mcts_max_depth=int(settings.mcts_max_depth),
+                pca=False,
+                merge=True,
+                decimate=decimate,
+                max_ch_vertex=MAX_PIECE_VERTICES,   # only applies with decimate=True
+                extrude=False,
+                apx_mode="ch",
+                seed=int(seed),
+            )
+        except Exception as exc:  # CoACD raises RuntimeError on meshes it cannot process
+            raise BakeFailedError(f"convex decomposition (CoACD) failed: {exc}") from None
+
+    parts = run(decimate=False)
+    pv, pf, dropped = _hulls(parts)
+    if any(len(h) > MAX_PIECE_VERTICES for h in pv):
+        # A bundle's piece has at most 1024 vertices (docs/input-contract.md). The voxel
+        # remesh of an open or non-manifold coarse mesh can give hulls of thousands of
+        # vertices; only then is CoACD rerun (same seed) with its hull decimation, so
+        # every other bake keeps its bytes. hull_deviation is measured on the result.
+        most = max(len(h) for h in pv)
+        parts = run(decimate=True)
+        pv, pf, dropped = _hulls(parts)
+        if any(len(h) > MAX_PIECE_VERTICES for h in pv):
+            raise BakeFailedError(
+                f"convex decomposition (CoACD) gave a piece of {max(len(h) for h in pv)} "
+                f"vertices, more than the limit {MAX_PIECE_VERTICES}, even with its hull "
+                f"decimation (try --set decompose.threshold=0.1)")
+        _warn(f"CoACD gave a convex piece of {most} vertices (the limit is "
+              f"{MAX_PIECE_VERTICES}): the decomposition was redone with hull decimation")
     if dropped:
         _warn(f"{dropped} flat convex pieces from CoACD were dropped")
     if not pv:
@@ -115,6 +121,25 @@ def decompose(coarse_vertices: np.ndarray, coarse_faces: np.ndarray,
     mapping = map_triangles(V, F, pv, pf, tol)
     return Pieces(vertices=pv, faces=pf, coarse_faces=mapping, map_tolerance=tol,
                   coacd_pieces=len(parts), warnings=warnings)
+
+
+def _hulls(parts):
+    """qhull re-hull of each CoACD part, rounded to float32 as stored; flat ones dropped."""
+    pv, pf = [], []
+    dropped = 0
+    for verts, _faces in parts:
+        pts = np.asarray(verts, dtype=np.float32).astype(np.float64)
+        try:
+            hv, hf = convex_hull_mesh(pts)
+        except BakeFailedError:
+            dropped += 1
+            continue
+        if len(hv) < 4 or len(hf) < 4:
+            dropped += 1
+            continue
+        pv.append(hv)
+        pf.append(hf)
+    return pv, pf, dropped
 
 
 def hull_planes(vertices: np.ndarray, faces: np.ndarray):

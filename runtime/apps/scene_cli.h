@@ -31,7 +31,8 @@ inline std::string real_number_error(const std::string& s) {
   char* end = nullptr;
   const double x = std::strtod(s.c_str(), &end);
   if (end != s.c_str() + s.size()) return "'" + s + "' is not a number";
-  if (errno == ERANGE || !std::isfinite(x)) return "'" + s + "' is out of the range of a double";
+  // ERANGE on underflow (1e-400 -> 0) is harmless; overflow is refused.
+  if ((errno == ERANGE && std::fabs(x) >= 1.0) || !std::isfinite(x)) return "'" + s + "' is out of the range of a double";
   return "";
 }
 inline std::string integer_error(const std::string& s) {
