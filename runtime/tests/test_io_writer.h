@@ -86,8 +86,9 @@ std::string golden_dir();
 std::string hrt_binary();
 // Runs `hrt args...` as a child process (no shell): its exit code (128 +
 // signal when killed), stdout (when asked; otherwise discarded), stderr and
-// peak resident set (wait4), so a crash or a memory blow-up of the command is
-// an assertion failure, not a failure of the test binary.
+// peak resident set (wait4; it includes the parent's peak, since the child
+// shares the parent's memory until exec), so a crash or a memory blow-up of
+// the command is an assertion failure, not a failure of the test binary.
 struct HrtRun {
   int status = -1;
   std::string out, err;
