@@ -144,21 +144,36 @@ int main(int argc, char** argv) {
   std::printf("bundles     A %s (%zu pieces), B %s (%zu pieces); %d poses, %zu candidate pairs\n", argv[1],
               ga.piece_bounds.size(), argv[2], gb.piece_bounds.size(), poses, jobs.size());
 
-  // New narrow phase: results and times.
+  // New narrow phase: results, then times per class (intersecting: d < 0).
   std::vector<Out> now(jobs.size());
-  std::vector<double> t_new;
-  for (int r = 0; r < repeat; ++r) {
-    const auto t0 = Clock::now();
-    for (size_t k = 0; k < jobs.size(); ++k) {
-      const Job& j = jobs[k];
-      double d = 0;
-      Vec3 pa, pb, n;
-      bool fb = false;
-      const bool ok = hrt::collision::piece_distance(ga, j.pa, j.b_from_a, gb, j.pb, gjk_tol, d, pa, pb, n, fb);
-      now[k] = Out{d, {n.x(), n.y(), n.z()}, ok ? 1 : 0};
+  auto run_new = [&](size_t k) {
+    const Job& j = jobs[k];
+    double d = 0;
+    Vec3 pa, pb, n;
+    bool fb = false;
+    const bool ok = hrt::collision::piece_distance(ga, j.pa, j.b_from_a, gb, j.pb, gjk_tol, d, pa, pb, n, fb);
+    now[k] = Out{d, {n.x(), n.y(), n.z()}, ok ? 1 : 0};
+  };
+  for (size_t k = 0; k < jobs.size(); ++k) run_new(k);
+  std::vector<char> intersecting(jobs.size());
+  for (size_t k = 0; k < jobs.size(); ++k) intersecting[k] = now[k].ok == 1 && now[k].d < 0;
+  // Median over repeats of the mean ns per call of one class.
+  auto time_class = [&](auto&& call, bool cls) {
+    std::vector<double> per;
+    for (int r = 0; r < repeat; ++r) {
+      size_t calls = 0;
+      const auto t0 = Clock::now();
+      for (size_t k = 0; k < jobs.size(); ++k)
+        if (static_cast<bool>(intersecting[k]) == cls) {
+          call(k);
+          ++calls;
+        }
+      per.push_back(std::chrono::duration<double, std::nano>(Clock::now() - t0).count() /
+                    static_cast<double>(std::max<size_t>(1, calls)));
     }
-    t_new.push_back(std::chrono::duration<double, std::nano>(Clock::now() - t0).count() / jobs.size());
-  }
+    return median(per);
+  };
+  const double new_in = time_class(run_new, true), new_sep = time_class(run_new, false);
 
   // Previous narrow phase, in children; restart after an abort.
   std::vector<Out> old(jobs.size(), Out{0, {0, 0, 0}, -1});
@@ -185,37 +200,35 @@ int main(int argc, char** argv) {
     }
   }
   // Timing of the previous one on the pairs it survives (in a child too).
-  std::vector<double> t_old;
+  double old_in = 0, old_sep = 0;
   {
     int fd[2];
     if (pipe(fd) != 0) return 1;
     const pid_t pid = fork();
     if (pid == 0) {
       close(fd[0]);
-      for (int r = 0; r < repeat; ++r) {
-        size_t calls = 0;
-        const auto t0 = Clock::now();
-        for (size_t k = 0; k < jobs.size(); ++k) {
-          if (old[k].ok != 1) continue;
-          const Job& j = jobs[k];
-          fcl::DistanceRequestd req(true, true);
-          req.distance_tolerance = gjk_tol;
-          fcl::DistanceResultd res;
-          fcl::Transform3d tf = fcl::Transform3d::Identity();
-          tf.linear() = j.b_from_a.linear();
-          tf.translation() = j.b_from_a.translation();
-          fcl::distance(ga.convex[static_cast<size_t>(j.pa)].get(), tf, gb.convex[static_cast<size_t>(j.pb)].get(),
-                        fcl::Transform3d::Identity(), req, res);
-          ++calls;
-        }
-        const double ns = std::chrono::duration<double, std::nano>(Clock::now() - t0).count() / std::max<size_t>(1, calls);
-        if (write(fd[1], &ns, sizeof ns) != sizeof ns) _exit(1);
-      }
+      auto run_old = [&](size_t k) {
+        if (old[k].ok != 1) return;
+        const Job& j = jobs[k];
+        fcl::DistanceRequestd req(true, true);
+        req.distance_tolerance = gjk_tol;
+        fcl::DistanceResultd res;
+        fcl::Transform3d tf = fcl::Transform3d::Identity();
+        tf.linear() = j.b_from_a.linear();
+        tf.translation() = j.b_from_a.translation();
+        fcl::distance(ga.convex[static_cast<size_t>(j.pa)].get(), tf, gb.convex[static_cast<size_t>(j.pb)].get(),
+                      fcl::Transform3d::Identity(), req, res);
+      };
+      const double t[2] = {time_class(run_old, true), time_class(run_old, false)};
+      if (write(fd[1], t, sizeof t) != sizeof t) _exit(1);
       _exit(0);
     }
     close(fd[1]);
-    double ns;
-    while (read(fd[0], &ns, sizeof ns) == sizeof ns) t_old.push_back(ns);
+    double t[2] = {0, 0};
+    if (read(fd[0], t, sizeof t) == sizeof t) {
+      old_in = t[0];
+      old_sep = t[1];
+    }
     close(fd[0]);
     int status = 0;
     waitpid(pid, &status, 0);
@@ -240,8 +253,10 @@ int main(int argc, char** argv) {
     if (b.norm() > 0.5 && std::abs(old[k].d) > 10 * gjk_tol)
       worst_angle = std::max(worst_angle, std::acos(std::clamp(a.dot(b), -1.0, 1.0)));
   }
-  std::printf("per call    new %.0f ns, previous %.0f ns (medians of %d repeats; ratio %.2f)\n", median(t_new),
-              median(t_old), repeat, median(t_new) / std::max(1.0, median(t_old)));
+  std::printf("per call    intersecting: new %.0f ns, previous %.0f ns (ratio %.2f); separated: new %.0f ns, "
+              "previous %.0f ns (ratio %.2f); medians of %d repeats\n",
+              new_in, old_in, new_in / std::max(1.0, old_in), new_sep, old_sep, new_sep / std::max(1.0, old_sep),
+              repeat);
   std::printf("agreement   %zu intersecting pairs: max |d_new - d_prev| %.3g m; %zu separated: %.3g m; "
               "normals (|d| > 10 tol) within %.3g rad\n",
               n_in, worst_in, n_sep, worst_sep, worst_angle);

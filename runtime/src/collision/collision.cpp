@@ -281,6 +281,24 @@ bool nearest_face_normal(const ModelGeometry& gb, int pb, const Vec3& p_b, Vec3&
   return true;
 }
 
+// Whether the segment p0 p1 meets the box [lo, hi] (slab test).
+bool segment_meets_box(const Vec3& p0, const Vec3& p1, const Vec3& lo, const Vec3& hi) {
+  double t0 = 0.0, t1 = 1.0;
+  const Vec3 d = p1 - p0;
+  for (int k = 0; k < 3; ++k) {
+    if (d[k] == 0.0) {
+      if (p0[k] < lo[k] || p0[k] > hi[k]) return false;
+      continue;
+    }
+    double ta = (lo[k] - p0[k]) / d[k], tb = (hi[k] - p0[k]) / d[k];
+    if (ta > tb) std::swap(ta, tb);
+    t0 = std::max(t0, ta);
+    t1 = std::min(t1, tb);
+    if (t0 > t1) return false;
+  }
+  return true;
+}
+
 // Penetration depth of two convex pieces by the separating-axis theorem,
 // which is exact for convex polytopes: the depth (the shortest translation of
 // A that separates them) is the smallest overlap over the face normals of the
@@ -329,28 +347,57 @@ bool sat_depth(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_
     }
   }
   // Edge pairs that form a face of A - B: arcs (n1a, n2a) and (-n1b, -n2b)
-  // intersect on the unit sphere.
-  for (const ModelGeometry::PieceEdge& ea : ga.edges[ia]) {
-    const Vec3 a1 = R * ea.n1, a2 = R * ea.n2;
-    const Vec3 pa0 = R * ea.a + t;
-    const Vec3 da = R * (ea.b - ea.a);
-    const Vec3 bxa = a2.cross(a1);
-    for (const ModelGeometry::PieceEdge& eb : gb.edges[ib]) {
-      const Vec3 c = -eb.n1, dd = -eb.n2;
-      const double cba = c.dot(bxa), dba = dd.dot(bxa);
-      if (!(cba * dba < 0)) continue;
-      const Vec3 dxc = dd.cross(c);
-      const double adc = a1.dot(dxc), bdc = a2.dot(dxc);
-      if (!(adc * bdc < 0) || !(cba * bdc > 0)) continue;
-      Vec3 u = da.cross(eb.b - eb.a);
-      const double len = u.norm();
-      if (!(len > 1e-12 * da.norm() * (eb.b - eb.a).norm())) continue;  // parallel edges
-      u /= len;
-      if (u.dot(a1 + a2) < 0) u = -u;  // outward from A at its edge
-      const double o = u.dot(pa0 - eb.a);
-      if (o < best) {
-        best = o;
-        axis = u;
+  // intersect on the unit sphere. Only edges that come within `best` (the
+  // face axes' smallest overlap, >= the depth) of the other piece's box can
+  // realise a smaller overlap: the optimal pair's witness points are the
+  // ends of a segment of length depth along the axis, one on each edge, so
+  // each edge meets the other piece grown by the depth. This prunes all but
+  // a few edges in shallow contact; it is exact. When a face axis already
+  // separates the pieces (best < 0) they only touch, and that axis is kept.
+  if (best >= 0 && std::isfinite(best)) {
+    const double grow = best + eps;
+    Vec3 alo = Vec3::Constant(std::numeric_limits<double>::infinity()), ahi = -alo;
+    for (const Vec3& x : va) {
+      const Vec3 y = R * x + t;
+      alo = alo.cwiseMin(y);
+      ahi = ahi.cwiseMax(y);
+    }
+    alo.array() -= grow;
+    ahi.array() += grow;
+    const Bounds& bbox = gb.piece_bounds[ib];
+    const Vec3 blo = bbox.center - bbox.half - Vec3::Constant(grow);
+    const Vec3 bhi = bbox.center + bbox.half + Vec3::Constant(grow);
+    thread_local std::vector<const ModelGeometry::PieceEdge*> near_b;
+    near_b.clear();
+    for (const ModelGeometry::PieceEdge& eb : gb.edges[ib])
+      if (segment_meets_box(eb.a, eb.b, alo, ahi)) near_b.push_back(&eb);
+    if (!near_b.empty()) {
+      for (const ModelGeometry::PieceEdge& ea : ga.edges[ia]) {
+        const Vec3 pa0 = R * ea.a + t;
+        const Vec3 pa1 = R * ea.b + t;
+        if (!segment_meets_box(pa0, pa1, blo, bhi)) continue;
+        const Vec3 a1 = R * ea.n1, a2 = R * ea.n2;
+        const Vec3 da = pa1 - pa0;
+        const Vec3 bxa = a2.cross(a1);
+        for (const ModelGeometry::PieceEdge* ebp : near_b) {
+          const ModelGeometry::PieceEdge& eb = *ebp;
+          const Vec3 c = -eb.n1, dd = -eb.n2;
+          const double cba = c.dot(bxa), dba = dd.dot(bxa);
+          if (!(cba * dba < 0)) continue;
+          const Vec3 dxc = dd.cross(c);
+          const double adc = a1.dot(dxc), bdc = a2.dot(dxc);
+          if (!(adc * bdc < 0) || !(cba * bdc > 0)) continue;
+          Vec3 u = da.cross(eb.b - eb.a);
+          const double len = u.norm();
+          if (!(len > 1e-12 * da.norm() * (eb.b - eb.a).norm())) continue;  // parallel edges
+          u /= len;
+          if (u.dot(a1 + a2) < 0) u = -u;  // outward from A at its edge
+          const double o = u.dot(pa0 - eb.a);
+          if (o < best) {
+            best = o;
+            axis = u;
+          }
+        }
       }
     }
   }
