@@ -13,6 +13,82 @@ namespace hrt::collision {
 
 namespace {
 
+// Spatially sorted chunks of items with boxes (sorted by centre along the
+// longest extent of all centres, then cut into runs of `chunk`).
+void make_chunks(const std::vector<Vec3>& lo, const std::vector<Vec3>& hi, int chunk,
+                 std::vector<ModelGeometry::SatChunk>& chunks, std::vector<int>& order) {
+  const size_t n = lo.size();
+  order.resize(n);
+  for (size_t i = 0; i < n; ++i) order[i] = static_cast<int>(i);
+  if (n == 0) return;
+  Vec3 clo = Vec3::Constant(std::numeric_limits<double>::infinity()), chi = -clo;
+  for (size_t i = 0; i < n; ++i) {
+    const Vec3 c = 0.5 * (lo[i] + hi[i]);
+    clo = clo.cwiseMin(c);
+    chi = chi.cwiseMax(c);
+  }
+  int ax = 0;
+  (chi - clo).maxCoeff(&ax);
+  std::stable_sort(order.begin(), order.end(),
+                   [&](int x, int y) { return lo[static_cast<size_t>(x)][ax] + hi[static_cast<size_t>(x)][ax] <
+                                              lo[static_cast<size_t>(y)][ax] + hi[static_cast<size_t>(y)][ax]; });
+  for (size_t k = 0; k < n; k += static_cast<size_t>(chunk)) {
+    ModelGeometry::SatChunk ch;
+    ch.first = static_cast<int>(k);
+    ch.count = static_cast<int>(std::min<size_t>(static_cast<size_t>(chunk), n - k));
+    ch.lo = Vec3::Constant(std::numeric_limits<double>::infinity());
+    ch.hi = -ch.lo;
+    for (int j = 0; j < ch.count; ++j) {
+      const size_t i = static_cast<size_t>(order[k + static_cast<size_t>(j)]);
+      ch.lo = ch.lo.cwiseMin(lo[i]);
+      ch.hi = ch.hi.cwiseMax(hi[i]);
+    }
+    chunks.push_back(ch);
+  }
+}
+
+void build_piece_sat(const ConvexPiece& piece, const std::vector<ModelGeometry::PieceEdge>& edges,
+                     ModelGeometry::PieceSat& sat) {
+  const size_t nv = piece.vertices.size();
+  // Vertex graph from the faces' edges (both directions, deduplicated).
+  std::vector<std::pair<int, int>> links;
+  links.reserve(piece.faces.size() * 6);
+  for (const Tri& f : piece.faces)
+    for (int c = 0; c < 3; ++c) {
+      const int i = static_cast<int>(f[static_cast<size_t>(c)]), j = static_cast<int>(f[static_cast<size_t>((c + 1) % 3)]);
+      links.emplace_back(i, j);
+      links.emplace_back(j, i);
+    }
+  std::sort(links.begin(), links.end());
+  links.erase(std::unique(links.begin(), links.end()), links.end());
+  sat.adj_offset.assign(nv + 1, 0);
+  for (const auto& l : links) ++sat.adj_offset[static_cast<size_t>(l.first) + 1];
+  for (size_t i = 0; i < nv; ++i) sat.adj_offset[i + 1] += sat.adj_offset[i];
+  sat.adj.resize(links.size());
+  for (size_t k = 0; k < links.size(); ++k) sat.adj[k] = links[k].second;
+  // Faces in the order of planes (the same zero-area skip).
+  std::vector<Vec3> lo, hi;
+  for (const Tri& f : piece.faces) {
+    const Vec3& a = piece.vertices[f[0]];
+    const Vec3& b = piece.vertices[f[1]];
+    const Vec3& c = piece.vertices[f[2]];
+    if (!((b - a).cross(c - a).norm() > 0)) continue;
+    const Vec3 m = (a + b + c) / 3.0;
+    const double r = std::max({(a - m).norm(), (b - m).norm(), (c - m).norm()});
+    sat.face_sphere.emplace_back(m.x(), m.y(), m.z(), r);
+    lo.push_back(a.cwiseMin(b).cwiseMin(c));
+    hi.push_back(a.cwiseMax(b).cwiseMax(c));
+  }
+  make_chunks(lo, hi, ModelGeometry::kSatChunk, sat.face_chunks, sat.face_order);
+  lo.clear();
+  hi.clear();
+  for (const ModelGeometry::PieceEdge& e : edges) {
+    lo.push_back(e.a.cwiseMin(e.b));
+    hi.push_back(e.a.cwiseMax(e.b));
+  }
+  make_chunks(lo, hi, ModelGeometry::kSatChunk, sat.edge_chunks, sat.edge_order);
+}
+
 Bounds bounds_of(const std::vector<Vec3>& pts) {
   Bounds b;
   if (pts.empty()) return b;
@@ -75,7 +151,7 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
   // are closed and consistently wound (checked by the loader), so every
   // directed edge (i, j) of a face has its reverse (j, i) in another face.
   g->edges.resize(np);
-  g->piece_centroid.resize(np);
+  g->sat.resize(np);
   for (size_t p = 0; p < np; ++p) {
     const ConvexPiece& piece = model.pieces[p];
     std::vector<std::pair<uint64_t, Vec3>> half;  // key (i << 32 | j), outward normal of its face
@@ -100,9 +176,7 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
       if (n1.dot(it->second) > 1.0 - 1e-12) continue;  // coplanar: not an edge of the hull
       g->edges[p].push_back({piece.vertices[i], piece.vertices[j], n1, it->second});
     }
-    Vec3 c = Vec3::Zero();
-    for (const Vec3& x : piece.vertices) c += x;
-    g->piece_centroid[p] = c / static_cast<double>(std::max<size_t>(1, piece.vertices.size()));
+    build_piece_sat(piece, g->edges[p], g->sat[p]);
   }
   g->face_spheres.reserve(model.faces.size());
   for (const Tri& f : model.faces) {
@@ -299,103 +373,180 @@ bool segment_meets_box(const Vec3& p0, const Vec3& p1, const Vec3& lo, const Vec
   return true;
 }
 
+// Support point of a convex piece along dir (object frame) by steepest
+// ascent on its vertex graph from `start`: on a convex polytope a vertex no
+// neighbour of which is higher is a highest vertex (every improving polytope
+// edge is an edge of the triangulation), so this is exact; on a piece convex
+// only within the bundle's tolerance it errs by at most that tolerance.
+int climb(const std::vector<Vec3>& v, const ModelGeometry::PieceSat& s, const Vec3& dir, int start, double& value) {
+  int cur = start;
+  value = dir.dot(v[static_cast<size_t>(cur)]);
+  for (;;) {
+    int next = cur;
+    for (int k = s.adj_offset[static_cast<size_t>(cur)]; k < s.adj_offset[static_cast<size_t>(cur) + 1]; ++k) {
+      const int j = s.adj[static_cast<size_t>(k)];
+      const double x = dir.dot(v[static_cast<size_t>(j)]);
+      if (x > value) {
+        value = x;
+        next = j;
+      }
+    }
+    if (next == cur) return cur;
+    cur = next;
+  }
+}
+
+bool boxes_meet(const Vec3& alo, const Vec3& ahi, const Vec3& blo, const Vec3& bhi) {
+  return !((alo.array() > bhi.array()).any() || (ahi.array() < blo.array()).any());
+}
+
+bool sphere_meets_box(const Eigen::Vector4d& s, const Vec3& lo, const Vec3& hi) {
+  const Vec3 c = s.head<3>();
+  const Vec3 q = c.cwiseMax(lo).cwiseMin(hi);
+  return (q - c).squaredNorm() <= s[3] * s[3];
+}
+
 // Penetration depth of two convex pieces by the separating-axis theorem,
 // which is exact for convex polytopes: the depth (the shortest translation of
 // A that separates them) is the smallest overlap over the face normals of the
 // Minkowski difference A - B, i.e. A's face normals, B's (reversed), and the
 // cross products of edge pairs whose arcs on the Gauss map intersect
 // (Gregorius, "The Separating Axis Test between Convex Polyhedra", GDC 2013).
-// No iteration, so no convergence or degeneracy failure; the cost is
-// O(F_a V_b + F_b V_a + E_a E_b), a few microseconds for CoACD pieces of a
-// few dozen vertices (README: narrow-phase benchmark). Everything in B's
-// frame. Sets d = -depth (d > 0 when an axis separates them by d: touching
-// within GJK's tolerance), n from A into B, and p_a, p_b on the deepest
+// No iteration to converge, so no degenerate case to fail on.
+//
+// Cost. The overlap along an axis u is support_A(u) + support_B(-u), each
+// found by hill climbing. Any axis's overlap bounds the depth from above, and
+// the face (or edge pair) of the Minkowski difference that realises the
+// depth has its two witness points, one on each piece, `depth` apart, so its
+// feature on each piece lies within `depth` of the other piece. So with a
+// bound U (first the overlap along the line between the boxes' centres, then
+// the best so far), only the features within U of the other piece's box are
+// tested: chunks of faces and edges by their boxes, then faces by their
+// bounding spheres and edges by segment-box tests. Exact, and in shallow
+// contact (the haptic case) it leaves a handful of features even for a
+// piece of hundreds (README: narrow-phase benchmark).
+//
+// Frames: A's features in A's frame, B's in B's, x_B = R x_A + t. Sets
+// d = -depth (d > 0 when a face axis separates them: touching within GJK's
+// tolerance), n (B frame) from A into B, and p_a, p_b on the deepest
 // features (p_a - p_b = depth n).
 bool sat_depth(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a, const ModelGeometry& gb,
                int pb, double eps, double& d, Vec3& p_a, Vec3& p_b, Vec3& n) {
   const auto ia = static_cast<size_t>(pa), ib = static_cast<size_t>(pb);
-  const std::vector<Vec3>& va = ga.model->pieces[ia].vertices;  // A's frame
-  const std::vector<Vec3>& vb = gb.model->pieces[ib].vertices;  // B's frame
+  const std::vector<Vec3>& va = ga.model->pieces[ia].vertices;
+  const std::vector<Vec3>& vb = gb.model->pieces[ib].vertices;
+  const ModelGeometry::PieceSat& sa = ga.sat[ia];
+  const ModelGeometry::PieceSat& sb = gb.sat[ib];
   const Mat3 R = b_from_a.linear();
+  const Mat3 Rt = R.transpose();
   const Vec3 t = b_from_a.translation();
-  double best = std::numeric_limits<double>::infinity();
-  Vec3 axis = Vec3::UnitZ();
-  // A's faces: A moves into B along its outward normal m (B frame R m);
-  // overlap = A's plane offset - B's lowest vertex along it.
-  for (const Eigen::Vector4d& pl : ga.planes[ia]) {
-    const Vec3 m = R * pl.head<3>();
-    const double top = pl[3] + m.dot(t);
-    double lo = std::numeric_limits<double>::infinity();
-    for (const Vec3& x : vb) lo = std::min(lo, m.dot(x));
-    if (top - lo < best) {
-      best = top - lo;
-      axis = m;
+  int cur_a = 0, cur_b = 0;  // warm starts of the hill climbs
+  // support_A(R^T u) + u . t + support_B(-u): A's highest minus B's lowest along u (B frame).
+  auto overlap = [&](const Vec3& u) {
+    double ha = 0, hb = 0;
+    cur_a = climb(va, sa, Rt * u, cur_a, ha);
+    cur_b = climb(vb, sb, -u, cur_b, hb);
+    return ha + u.dot(t) + hb;
+  };
+  // Conservative boxes of each piece in the other's frame.
+  const Bounds& boxa = ga.piece_bounds[ia];
+  const Bounds& boxb = gb.piece_bounds[ib];
+  const Vec3 a_in_b_c = R * boxa.center + t, a_in_b_h = R.cwiseAbs() * boxa.half;
+  const Vec3 b_in_a_c = Rt * (boxb.center - t), b_in_a_h = Rt.cwiseAbs() * boxb.half;
+
+  Vec3 axis = boxb.center - a_in_b_c;
+  axis = axis.norm() > 0 ? Vec3(axis.normalized()) : Vec3::UnitZ();
+  double best = overlap(axis);
+  if (!std::isfinite(best)) return false;
+
+  // A's faces (outward normal m_A; u = R m_A): overlap = A's plane offset
+  // in B's frame + support_B(-u).
+  for (const ModelGeometry::SatChunk& ch : sa.face_chunks) {
+    const Vec3 g = Vec3::Constant(std::max(best, 0.0) + eps);
+    const Vec3 lo = b_in_a_c - b_in_a_h - g, hi = b_in_a_c + b_in_a_h + g;
+    if (!boxes_meet(ch.lo, ch.hi, lo, hi)) continue;
+    for (int k = ch.first; k < ch.first + ch.count; ++k) {
+      const size_t f = static_cast<size_t>(sa.face_order[static_cast<size_t>(k)]);
+      const Vec3 gg = Vec3::Constant(std::max(best, 0.0) + eps);
+      if (!sphere_meets_box(sa.face_sphere[f], b_in_a_c - b_in_a_h - gg, b_in_a_c + b_in_a_h + gg)) continue;
+      const Eigen::Vector4d& pl = ga.planes[ia][f];
+      const Vec3 u = R * pl.head<3>();
+      double hb = 0;
+      cur_b = climb(vb, sb, -u, cur_b, hb);
+      const double o = pl[3] + u.dot(t) + hb;
+      if (o < best) {
+        best = o;
+        axis = u;
+      }
     }
   }
-  // B's faces (outward m): A moves into B along -m; overlap = B's offset
-  // minus A's lowest vertex along m (A's vertices via R^T m, in A's frame).
-  for (const Eigen::Vector4d& pl : gb.planes[ib]) {
-    const Vec3 m = pl.head<3>();
-    const Vec3 ml = R.transpose() * m;
-    const double off = m.dot(t);
-    double lo = std::numeric_limits<double>::infinity();
-    for (const Vec3& x : va) lo = std::min(lo, ml.dot(x));
-    const double o = pl[3] - (lo + off);
-    if (o < best) {
-      best = o;
-      axis = -m;
+  // B's faces (outward m; u = -m): overlap = support_A(-R^T m) - m . t + B's offset.
+  for (const ModelGeometry::SatChunk& ch : sb.face_chunks) {
+    const Vec3 g = Vec3::Constant(std::max(best, 0.0) + eps);
+    const Vec3 lo = a_in_b_c - a_in_b_h - g, hi = a_in_b_c + a_in_b_h + g;
+    if (!boxes_meet(ch.lo, ch.hi, lo, hi)) continue;
+    for (int k = ch.first; k < ch.first + ch.count; ++k) {
+      const size_t f = static_cast<size_t>(sb.face_order[static_cast<size_t>(k)]);
+      const Vec3 gg = Vec3::Constant(std::max(best, 0.0) + eps);
+      if (!sphere_meets_box(sb.face_sphere[f], a_in_b_c - a_in_b_h - gg, a_in_b_c + a_in_b_h + gg)) continue;
+      const Eigen::Vector4d& pl = gb.planes[ib][f];
+      const Vec3 m = pl.head<3>();
+      double ha = 0;
+      cur_a = climb(va, sa, -(Rt * m), cur_a, ha);
+      const double o = ha - m.dot(t) + pl[3];
+      if (o < best) {
+        best = o;
+        axis = -m;
+      }
     }
   }
   // Edge pairs that form a face of A - B: arcs (n1a, n2a) and (-n1b, -n2b)
-  // intersect on the unit sphere. Only edges that come within `best` (the
-  // face axes' smallest overlap, >= the depth) of the other piece's box can
-  // realise a smaller overlap: the optimal pair's witness points are the
-  // ends of a segment of length depth along the axis, one on each edge, so
-  // each edge meets the other piece grown by the depth. This prunes all but
-  // a few edges in shallow contact; it is exact. When a face axis already
-  // separates the pieces (best < 0) they only touch, and that axis is kept.
-  if (best >= 0 && std::isfinite(best)) {
+  // intersect on the unit sphere. When a face axis already separates the
+  // pieces (best < 0) they only touch, and that axis is kept.
+  if (best >= 0) {
     const double grow = best + eps;
-    Vec3 alo = Vec3::Constant(std::numeric_limits<double>::infinity()), ahi = -alo;
-    for (const Vec3& x : va) {
-      const Vec3 y = R * x + t;
-      alo = alo.cwiseMin(y);
-      ahi = ahi.cwiseMax(y);
-    }
-    alo.array() -= grow;
-    ahi.array() += grow;
-    const Bounds& bbox = gb.piece_bounds[ib];
-    const Vec3 blo = bbox.center - bbox.half - Vec3::Constant(grow);
-    const Vec3 bhi = bbox.center + bbox.half + Vec3::Constant(grow);
+    const Vec3 g = Vec3::Constant(grow);
     thread_local std::vector<const ModelGeometry::PieceEdge*> near_b;
     near_b.clear();
-    for (const ModelGeometry::PieceEdge& eb : gb.edges[ib])
-      if (segment_meets_box(eb.a, eb.b, alo, ahi)) near_b.push_back(&eb);
+    {
+      const Vec3 lo = a_in_b_c - a_in_b_h - g, hi = a_in_b_c + a_in_b_h + g;
+      for (const ModelGeometry::SatChunk& ch : sb.edge_chunks) {
+        if (!boxes_meet(ch.lo, ch.hi, lo, hi)) continue;
+        for (int k = ch.first; k < ch.first + ch.count; ++k) {
+          const ModelGeometry::PieceEdge& e = gb.edges[ib][static_cast<size_t>(sb.edge_order[static_cast<size_t>(k)])];
+          if (segment_meets_box(e.a, e.b, lo, hi)) near_b.push_back(&e);
+        }
+      }
+    }
     if (!near_b.empty()) {
-      for (const ModelGeometry::PieceEdge& ea : ga.edges[ia]) {
-        const Vec3 pa0 = R * ea.a + t;
-        const Vec3 pa1 = R * ea.b + t;
-        if (!segment_meets_box(pa0, pa1, blo, bhi)) continue;
-        const Vec3 a1 = R * ea.n1, a2 = R * ea.n2;
-        const Vec3 da = pa1 - pa0;
-        const Vec3 bxa = a2.cross(a1);
-        for (const ModelGeometry::PieceEdge* ebp : near_b) {
-          const ModelGeometry::PieceEdge& eb = *ebp;
-          const Vec3 c = -eb.n1, dd = -eb.n2;
-          const double cba = c.dot(bxa), dba = dd.dot(bxa);
-          if (!(cba * dba < 0)) continue;
-          const Vec3 dxc = dd.cross(c);
-          const double adc = a1.dot(dxc), bdc = a2.dot(dxc);
-          if (!(adc * bdc < 0) || !(cba * bdc > 0)) continue;
-          Vec3 u = da.cross(eb.b - eb.a);
-          const double len = u.norm();
-          if (!(len > 1e-12 * da.norm() * (eb.b - eb.a).norm())) continue;  // parallel edges
-          u /= len;
-          if (u.dot(a1 + a2) < 0) u = -u;  // outward from A at its edge
-          const double o = u.dot(pa0 - eb.a);
-          if (o < best) {
-            best = o;
-            axis = u;
+      const Vec3 lo = b_in_a_c - b_in_a_h - g, hi = b_in_a_c + b_in_a_h + g;
+      for (const ModelGeometry::SatChunk& ch : sa.edge_chunks) {
+        if (!boxes_meet(ch.lo, ch.hi, lo, hi)) continue;
+        for (int k = ch.first; k < ch.first + ch.count; ++k) {
+          const ModelGeometry::PieceEdge& ea = ga.edges[ia][static_cast<size_t>(sa.edge_order[static_cast<size_t>(k)])];
+          if (!segment_meets_box(ea.a, ea.b, lo, hi)) continue;
+          const Vec3 a1 = R * ea.n1, a2 = R * ea.n2;
+          const Vec3 pa0 = R * ea.a + t;
+          const Vec3 da = R * (ea.b - ea.a);
+          const Vec3 bxa = a2.cross(a1);
+          for (const ModelGeometry::PieceEdge* ebp : near_b) {
+            const ModelGeometry::PieceEdge& eb = *ebp;
+            const Vec3 c = -eb.n1, dd = -eb.n2;
+            const double cba = c.dot(bxa), dba = dd.dot(bxa);
+            if (!(cba * dba < 0)) continue;
+            const Vec3 dxc = dd.cross(c);
+            const double adc = a1.dot(dxc), bdc = a2.dot(dxc);
+            if (!(adc * bdc < 0) || !(cba * bdc > 0)) continue;
+            Vec3 u = da.cross(eb.b - eb.a);
+            const double len = u.norm();
+            if (!(len > 1e-12 * da.norm() * (eb.b - eb.a).norm())) continue;  // parallel edges
+            u /= len;
+            if (u.dot(a1 + a2) < 0) u = -u;  // outward from A at its edge
+            const double o = u.dot(pa0 - eb.a);
+            if (o < best) {
+              best = o;
+              axis = u;
+            }
           }
         }
       }
@@ -405,32 +556,30 @@ bool sat_depth(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_
   // The deepest features along the axis: A's vertices within eps of its
   // highest, B's within eps of its lowest; the contact point lies over the
   // smaller of the two (a vertex or an edge inside a face), or midway.
+  const Vec3 axis_a = Rt * axis;
   double amax = -std::numeric_limits<double>::infinity(), bmin = std::numeric_limits<double>::infinity();
-  const Vec3 axis_a = R.transpose() * axis;
   for (const Vec3& x : va) amax = std::max(amax, axis_a.dot(x));
-  amax += axis.dot(t);
   for (const Vec3& x : vb) bmin = std::min(bmin, axis.dot(x));
   Vec3 ca = Vec3::Zero(), cb = Vec3::Zero();
   int na = 0, nb = 0;
-  for (const Vec3& x : va) {
-    const Vec3 y = R * x + t;
-    if (axis.dot(y) >= amax - eps) {
-      ca += y;
+  for (const Vec3& x : va)
+    if (axis_a.dot(x) >= amax - eps) {
+      ca += x;
       ++na;
     }
-  }
   for (const Vec3& x : vb)
     if (axis.dot(x) <= bmin + eps) {
       cb += x;
       ++nb;
     }
-  ca /= std::max(na, 1);
+  ca = R * (ca / std::max(na, 1)) + t;
   cb /= std::max(nb, 1);
+  amax += axis.dot(t);
   const Vec3 lateral = na < nb ? ca : nb < na ? cb : Vec3(0.5 * (ca + cb));
   const Vec3 l0 = lateral - axis.dot(lateral) * axis;
   p_a = l0 + amax * axis;
   p_b = l0 + bmin * axis;
-  d = -best;
+  d = -(amax - bmin);
   n = axis;
   return p_a.allFinite() && p_b.allFinite() && std::isfinite(d);
 }

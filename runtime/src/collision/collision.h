@@ -77,7 +77,23 @@ struct ModelGeometry {
     Vec3 n1, n2;  // outward normals of the two faces that share the edge
   };
   std::vector<std::vector<PieceEdge>> edges;
-  std::vector<Vec3> piece_centroid;  // mean of each piece's vertices
+  // Per piece, for the separating-axis depth: the vertex graph (support
+  // points by hill climbing, exact on a convex polytope) and the faces
+  // (indices into planes) and edges (into edges) in spatially sorted chunks
+  // of up to kSatChunk with their object-frame boxes, so that only the
+  // features near the other piece are tested.
+  struct SatChunk {
+    Vec3 lo, hi;
+    int first, count;  // into face_order / edge_order
+  };
+  static constexpr int kSatChunk = 16;
+  struct PieceSat {
+    std::vector<int> adj_offset, adj;            // vertex adjacency (CSR)
+    std::vector<Eigen::Vector4d> face_sphere;    // per plane: centre xyz, radius
+    std::vector<SatChunk> face_chunks, edge_chunks;
+    std::vector<int> face_order, edge_order;
+  };
+  std::vector<PieceSat> sat;
   // B side: the broad-phase tree of the pieces in the object frame (built and
   // balanced by FCL's DynamicAABBTreeCollisionManager; detect_pairs descends
   // its tree with A's piece boxes).
