@@ -296,40 +296,210 @@ def atlas_lookup(atlas: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return out[0] if single else out
 
 
+# Work bound of the atlas's per-triangle checks (the C++ loader's, docs/input-contract.md):
+# rows and candidate texels examined, at most this many per texel of the atlas plus per
+# triangle. Non-overlapping UV charts need 1.2-3.2 W H; overlapping copies or slivers
+# across the atlas, which no baker writes, are refused before they cost W H each.
+_WORK_PER_TEXEL = 16
+_WORK_PER_TRIANGLE = 64
+# Widening (texels) of the per-row candidate spans, far above their rounding.
+_SPAN_PAD = 1e-6
+# The loader's coverage-check margin (texels); used here only to count that check's work.
+_COVERAGE_MARGIN = 1e-3
+# Batch sizes of the vectorized footprint passes (rows, candidate texels).
+_ROW_BATCH = 1 << 16
+_TEXEL_BATCH = 1 << 18
+
+
+def _work_limit(width: int, height: int, triangles: int) -> int:
+    return _WORK_PER_TEXEL * width * height + _WORK_PER_TRIANGLE * triangles
+
+
+def _work_problem(name: str, limit: int) -> str:
+    return (f"{name}: the UV triangles need more than {limit} texel tests ({_WORK_PER_TEXEL} per "
+            f"texel of the atlas + {_WORK_PER_TRIANGLE} per triangle): UV triangles overlap or are "
+            "slivers across the atlas")
+
+
+def _int_clip(x: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """Integer-valued floats to int64, clipped to [lo, hi] first (no overflow)."""
+    return np.clip(x, lo, hi).astype(np.int64)
+
+
+def _batches(counts: np.ndarray, size: int):
+    """Consecutive index ranges [a, b) of ``counts`` with at most ``size`` in all (or one
+    item, if it alone is larger)."""
+    ends = np.cumsum(counts)
+    a, n = 0, len(counts)
+    while a < n:
+        base = ends[a - 1] if a else 0
+        b = int(np.searchsorted(ends, base + size, side="right"))
+        b = max(b, a + 1)
+        yield a, b
+        a = b
+
+
+def _expand(starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(owner, value): for each k, counts[k] entries owner k with values starts[k] + 0, 1, ..."""
+    owner = np.repeat(np.arange(len(counts)), counts)
+    first = np.cumsum(counts) - counts
+    return owner, starts[owner] + (np.arange(len(owner)) - first[owner])
+
+
+class _Footprints:
+    """The footprint test of _footprint_texels for a batch of UV triangles (T, 3, 2).
+
+    A point at texel coordinates (x, y) reads texels floor(x) + {0, 1} by floor(y) + {0, 1}
+    (clamped), so texel (i, j) is read iff the triangle meets the square
+    [i-1, i+1] x [j-1, j+1] (closed: conservative at exact ties): the separating-axis test
+    on the two box axes and the three edge normals. Per row, only the x-span of the
+    triangle within the band [j-1, j+1] (plus one texel each side) is examined, as the C++
+    loader does (runtime/src/io/bundle.cpp, footprint()); that is a superset of the
+    texels the test keeps, so the result is that of examining the whole bounding box."""
+
+    def __init__(self, uv_tris: np.ndarray, width: int, height: int):
+        self.w, self.h = width, height
+        p = texel_coords(uv_tris, width, height)  # (T, 3, 2)
+        self.px, self.py = np.ascontiguousarray(p[:, :, 0]), np.ascontiguousarray(p[:, :, 1])
+        self.xmin, self.xmax = self.px.min(axis=1), self.px.max(axis=1)
+        self.ymin, self.ymax = self.py.min(axis=1), self.py.max(axis=1)
+        # candidate range bounded by the image (plus one): beyond it lookups clamp
+        self.i0 = _int_clip(np.floor(self.xmin) - 1, -1, width + 1)
+        self.i1 = _int_clip(np.ceil(self.xmax) + 1, -2, width)
+        j0 = _int_clip(np.floor(self.ymin) - 1, -1, height + 1)
+        j1 = _int_clip(np.ceil(self.ymax) + 1, -2, height)
+        # rows that pass the y box axis: ymin - 1 <= j <= ymax + 1
+        self.row0 = np.maximum(j0, _int_clip(np.ceil(self.ymin - 1), -2, height + 2))
+        row1 = np.minimum(j1, _int_clip(np.floor(self.ymax + 1), -2, height + 2))
+        self.rows = np.maximum(row1 - self.row0 + 1, 0)
+        # edge normals n_k = (b_y - a_y, a_x - b_x) of edge a = p_k -> b = p_{k+1}, and the
+        # triangle's extent along each; the projections are p @ n as a (3, 2) @ (2,)
+        # product, the same BLAS call (and rounding) as one triangle at a time
+        q = np.roll(p, -1, axis=1)
+        self.nx = np.ascontiguousarray(q[:, :, 1] - p[:, :, 1])
+        self.ny = np.ascontiguousarray(p[:, :, 0] - q[:, :, 0])
+        self.tmin = np.empty_like(self.nx)
+        self.tmax = np.empty_like(self.nx)
+        for k in range(3):
+            n = np.ascontiguousarray(np.stack([self.nx[:, k], self.ny[:, k]], axis=-1))[:, :, None]
+            proj = np.matmul(p, n)[:, :, 0]
+            self.tmin[:, k], self.tmax[:, k] = proj.min(axis=1), proj.max(axis=1)
+        self.r = np.abs(self.nx) + np.abs(self.ny)
+
+    def row_batches(self):
+        return _batches(self.rows, _ROW_BATCH)
+
+    def spans(self, a: int, b: int):
+        """Rows of triangles a..b-1: (triangle, j, first candidate i, candidate count)."""
+        tri, j = _expand(self.row0[a:b], self.rows[a:b])
+        tri += a
+        jf = j.astype(np.float64)
+        ylo, yhi = jf - 1 - _SPAN_PAD, jf + 1 + _SPAN_PAD
+        xa = np.full(len(j), np.inf)
+        xb = np.full(len(j), -np.inf)
+        px, py = self.px[tri], self.py[tri]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            for k in range(3):
+                k1 = (k + 1) % 3
+                inside = (py[:, k] >= ylo) & (py[:, k] <= yhi)
+                xa = np.where(inside, np.minimum(xa, px[:, k]), xa)
+                xb = np.where(inside, np.maximum(xb, px[:, k]), xb)
+                dy = py[:, k1] - py[:, k]
+                for yl in (ylo, yhi):
+                    cross = ((py[:, k] - yl) * (py[:, k1] - yl) <= 0) & (dy != 0)
+                    x = px[:, k] + (yl - py[:, k]) / dy * (px[:, k1] - px[:, k])
+                    xa = np.where(cross, np.minimum(xa, x), xa)
+                    xb = np.where(cross, np.maximum(xb, x), xb)
+        ok = xa <= xb
+        w = self.w
+        ia = np.maximum(self.i0[tri], _int_clip(np.floor(np.where(ok, xa, 0) - 1 - _SPAN_PAD) - 1, -3, w + 3))
+        ib = np.minimum(self.i1[tri], _int_clip(np.ceil(np.where(ok, xb, 0) + 1 + _SPAN_PAD) + 1, -3, w + 3))
+        count = np.where(ok, np.maximum(ib - ia + 1, 0), 0)
+        return tri, j, ia, count
+
+    def texels(self, tri: np.ndarray, j: np.ndarray, ia: np.ndarray, count: np.ndarray):
+        """The texels the rows' candidates read: (triangle, i, j) clamped to the image, in
+        the order of the rows and by i (the order of the bounding-box scan)."""
+        row, ci = _expand(ia, count)
+        # per-row terms, then one gather per term; centre = i n_x + j n_y as before
+        keep = (ci >= (self.xmin[tri] - 1)[row]) & (ci <= (self.xmax[tri] + 1)[row])
+        cf = ci.astype(np.float64)
+        for k in range(3):
+            nx, r = self.nx[tri, k], self.r[tri, k]
+            centre = cf * nx[row]
+            centre += (j * self.ny[tri, k])[row]
+            keep &= (centre + r[row] >= self.tmin[tri, k][row])
+            keep &= (centre - r[row] <= self.tmax[tri, k][row])
+        row = row[keep]
+        return (tri[row], np.clip(ci[keep], 0, self.w - 1), np.clip(j[row], 0, self.h - 1))
+
+    def visit(self):
+        """All texels read, in batches: yields (triangle, i, j) arrays in triangle order."""
+        for a, b in self.row_batches():
+            tri, j, ia, count = self.spans(a, b)
+            for c, d in _batches(count, _TEXEL_BATCH):
+                yield self.texels(tri[c:d], j[c:d], ia[c:d], count[c:d])
+
+
+def _coverage_work(uv_tris: np.ndarray, width: int, height: int, budget: int) -> int:
+    """Rows and candidate texels that the C++ loader's coverage check (A = 1 exactly where
+    a texel centre lies inside a UV triangle) examines, counted as it does; stops counting
+    once past ``budget``. This reader does not run that check, but counts its work so that
+    both readers refuse the same bundles for the work bound."""
+    px = uv_tris[:, :, 0].astype(np.float64) * width
+    py = (1.0 - uv_tris[:, :, 1].astype(np.float64)) * height
+    area2 = (px[:, 1] - px[:, 0]) * (py[:, 2] - py[:, 0]) - (px[:, 2] - px[:, 0]) * (py[:, 1] - py[:, 0])
+    keep = area2 != 0
+    px, py, area2 = px[keep], py[keep], area2[keep]
+    m = _COVERAGE_MARGIN
+    i0 = _int_clip(np.ceil(px.min(axis=1) - m - 0.5), 0, width)
+    i1 = _int_clip(np.floor(px.max(axis=1) + m - 0.5), -1, width - 1)
+    j0 = _int_clip(np.ceil(py.min(axis=1) - m - 0.5), 0, height)
+    j1 = _int_clip(np.floor(py.max(axis=1) + m - 0.5), -1, height - 1)
+    rows = np.maximum(j1 - j0 + 1, 0)
+    work = int(rows.sum())
+    if work > budget:
+        return work
+    sgn = np.where(area2 > 0, 1.0, -1.0)
+    ex = np.roll(px, -1, axis=1) - px
+    ey = np.roll(py, -1, axis=1) - py
+    el = np.hypot(ex, ey)
+    for a, b in _batches(rows, _ROW_BATCH):
+        t, j = _expand(j0[a:b], rows[a:b])
+        t += a
+        cy = j + 0.5
+        lo = i0[t] + 0.5
+        hi = i1[t] + 0.5
+        s = sgn[t]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            for k in range(3):
+                av = -s * ey[t, k]
+                bv = -m * el[t, k] - s * ex[t, k] * (cy - py[t, k])
+                x = px[t, k] + bv / av
+                lo = np.where(av > 0, np.maximum(lo, x - _SPAN_PAD), lo)
+                hi = np.where(av < 0, np.minimum(hi, x + _SPAN_PAD), hi)
+                hi = np.where((av == 0) & (bv > _SPAN_PAD * el[t, k]), lo - 1, hi)
+        ok = lo <= hi
+        ia = np.maximum(i0[t], _int_clip(np.ceil(np.where(ok, lo, 0) - 0.5), -1, width + 1))
+        ib = np.minimum(i1[t], _int_clip(np.floor(np.where(ok, hi, 0) - 0.5), -1, width + 1))
+        work += int(np.where(ok, np.maximum(ib - ia + 1, 0), 0).sum())
+        if work > budget:
+            break
+    return work
+
+
 def _footprint_texels(uv_tri: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """Texels (i, j) that a bilinear lookup at some point of a UV triangle reads.
 
     A point at texel coordinates (x, y) reads texels floor(x) + {0, 1} by
     floor(y) + {0, 1} (clamped), so texel (i, j) is read iff the triangle meets the
-    square [i-1, i+1] x [j-1, j+1] (closed: conservative at exact ties). The
-    square-triangle test is the separating-axis test on the two box axes (the
-    candidate range) and the three edge normals."""
-    p = texel_coords(uv_tri, width, height)  # (3, 2)
-    lo = np.floor(p.min(axis=0)).astype(np.int64) - 1
-    hi = np.ceil(p.max(axis=0)).astype(np.int64) + 1
-    # Clamp the candidate range: texels beyond the image map to its border anyway,
-    # and a range bounded by the image keeps corrupt UVs from exploding the work.
-    lo_c = np.maximum(lo, [-1, -1])
-    hi_c = np.minimum(hi, [width, height])
-    ii = np.arange(lo_c[0], hi_c[0] + 1)
-    jj = np.arange(lo_c[1], hi_c[1] + 1)
-    ci, cj = np.meshgrid(ii, jj, indexing="xy")
-    ci = ci.ravel()
-    cj = cj.ravel()
-    # box axes: |x_i - c| <= 1 somewhere on the triangle
-    keep = ((ci >= p[:, 0].min() - 1) & (ci <= p[:, 0].max() + 1)
-            & (cj >= p[:, 1].min() - 1) & (cj <= p[:, 1].max() + 1))
-    for k in range(3):
-        a, b = p[k], p[(k + 1) % 3]
-        n = np.array([b[1] - a[1], a[0] - b[0]])  # normal of edge a->b
-        proj = p @ n
-        tmin, tmax = proj.min(), proj.max()
-        centre = ci * n[0] + cj * n[1]
-        r = abs(n[0]) + abs(n[1])  # half-extent 1 of the square along n
-        keep &= (centre + r >= tmin) & (centre - r <= tmax)
-    ci = np.clip(ci[keep], 0, width - 1)
-    cj = np.clip(cj[keep], 0, height - 1)
-    return ci, cj
+    square [i-1, i+1] x [j-1, j+1] (closed: conservative at exact ties); see
+    _Footprints, which tests many triangles at once."""
+    fp = _Footprints(np.asarray(uv_tri, dtype=np.float64).reshape(1, 3, 2), width, height)
+    parts = list(fp.visit())
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate([p[1] for p in parts]), np.concatenate([p[2] for p in parts])
 
 
 # --------------------------------------------------------------------------- PLY
@@ -925,6 +1095,25 @@ def _convexity(v, f, vstart, fstart, pieces, tol):
     return out
 
 
+# Rows per product in _rows_max: 32 x 4 x 1024 multiply-adds stay below OpenBLAS's
+# threshold for starting threads (65,536 x 4).
+_GEMM_ROWS = 32
+
+
+def _rows_max(plane: np.ndarray, pts4: np.ndarray) -> np.ndarray:
+    """``(plane @ pts4).max(axis=1)`` as a stack of products of _GEMM_ROWS rows each, one
+    numpy call. OpenBLAS runs each small product on one thread, where one big product
+    started its threads for a few microseconds of work: 200 pieces of 1024 vertices took
+    2.4-7 s on a loaded 2-core box instead of 0.15 s (the float32 pass's error bound
+    covers any order of its 4-term sums, so the verdict does not depend on this)."""
+    n = len(plane)
+    m = -(-n // _GEMM_ROWS) * _GEMM_ROWS
+    if m != n:
+        plane = np.concatenate([plane, np.repeat(plane[-1:], m - n, axis=0)])
+    stacked = np.matmul(plane.reshape(-1, _GEMM_ROWS, plane.shape[1]), pts4)
+    return stacked.max(axis=2).reshape(-1)[:n]
+
+
 def _convex_one(v, f, k, vstart, fstart, tol):
     pv = v[vstart[k]:vstart[k + 1]]
     ref = 0.5 * (pv.min(axis=0) + pv.max(axis=0))
@@ -951,7 +1140,7 @@ def _convex_one(v, f, k, vstart, fstart, tol):
         off = np.einsum("fk,fk->f", nrm, tri[:, 0])
         if exact32:
             plane = np.hstack([nrm, -off[:, None]]).astype(np.float32)
-            rough = (plane @ pts4).max(axis=1)
+            rough = _rows_max(plane, pts4)
             sel = np.flatnonzero(rough > tol - margin)
             if len(sel) == 0:
                 continue
@@ -1247,7 +1436,13 @@ class _Checker:
 
     def check_atlas_footprints(self) -> None:
         """Every texel that a bilinear lookup inside a UV triangle reads must be finite
-        and filled (covered, or within the gutter of a covered texel)."""
+        and filled (covered, or within the gutter of a covered texel).
+
+        Bounded like the C++ loader's texel checks: the rows and candidate texels
+        examined are counted first (rows from each triangle's extent, then each row's
+        candidate span) and past 16 per texel of the atlas + 64 per triangle the bundle
+        is refused before any texel is tested; the count includes the loader's coverage
+        check, so both readers refuse the same bundles."""
         if self.atlas is None or self.coarse is None or not self.invariants:
             return
         name = self.manifest["files"]["atlas"]["path"]
@@ -1255,27 +1450,43 @@ class _Checker:
         atlas = self.atlas
         h, w = atlas.shape[:2]
         v, f, uv = self.coarse
+        limit = _work_limit(w, h, len(f))
+        uv = uv.reshape(len(uv), 3, 2)
+        tris = np.flatnonzero(np.all(np.isfinite(uv.reshape(len(uv), 6)), axis=1))
+        fp = _Footprints(uv[tris], w, h)
+        work = int(fp.rows.sum())
+        if work <= limit:
+            for a, b in fp.row_batches():
+                work += int(fp.spans(a, b)[3].sum())
+                if work > limit:
+                    break
+        if work > limit:
+            self.add("atlas", _work_problem(name, limit))
+            return
         finite = np.all(np.isfinite(atlas), axis=2)
         covered = finite & (atlas[:, :, 3] == 1)
         # filled = within Chebyshev distance `gutter` of a covered texel
         from scipy.ndimage import maximum_filter
         filled = maximum_filter(covered.astype(np.uint8), size=2 * gutter + 1, mode="constant") > 0
         read = np.zeros((h, w), dtype=bool)
-        nonfinite_tris, unfilled_tris = [], []
-        uv_ok = np.all(np.isfinite(uv.reshape(len(uv), 6)), axis=1)
-        for t in np.flatnonzero(uv_ok):
-            ci, cj = _footprint_texels(uv[t].astype(np.float64), w, h)
-            if len(ci) == 0:
-                continue
+        # per triangle (of `tris`): texels read that are non-finite / unfilled, and the
+        # first of them (j w + i), in the order of a row-by-row scan
+        counts = np.zeros((2, len(tris)), np.int64)
+        firsts = np.full((2, len(tris)), -1, np.int64)
+        for t, ci, cj in fp.visit():
             read[cj, ci] = True
-            nf = ~finite[cj, ci]
-            if nf.any():
-                k = np.flatnonzero(nf)[0]
-                nonfinite_tris.append((t, int(nf.sum()), int(ci[k]), int(cj[k])))
-            uf = ~filled[cj, ci] & finite[cj, ci]
-            if uf.any():
-                k = np.flatnonzero(uf)[0]
-                unfilled_tris.append((t, int(uf.sum()), int(ci[k]), int(cj[k])))
+            fin = finite[cj, ci]
+            for kind, bad in enumerate((~fin, fin & ~filled[cj, ci])):
+                if not bad.any():
+                    continue
+                tb, kb = t[bad], (cj[bad] * w + ci[bad])
+                u, pos, cnt = np.unique(tb, return_index=True, return_counts=True)  # tb is sorted
+                counts[kind, u] += cnt
+                new = firsts[kind, u] < 0
+                firsts[kind, u[new]] = kb[pos[new]]
+        nonfinite_tris, unfilled_tris = [
+            [(int(tris[k]), int(counts[kind, k]), int(firsts[kind, k] % w), int(firsts[kind, k] // w))
+             for k in np.flatnonzero(counts[kind])] for kind in (0, 1)]
         if nonfinite_tris:
             self.add("atlas", f"{name}: bilinear lookups inside {_n(len(nonfinite_tris), 'UV triangle')} read "
                      "non-finite texels: " + _examples(
@@ -1290,6 +1501,8 @@ class _Checker:
             j, i = stray[0]
             self.add("atlas", f"{name}: {_n(len(stray), 'non-finite texel')} outside every UV triangle's "
                      f"footprint (first: texel ({i}, {j})); unused texels must hold 0")
+        if work + _coverage_work(uv[tris], w, h, limit - work) > limit:
+            self.add("atlas", _work_problem(name, limit))
 
     # -- pieces -------------------------------------------------------------------
     def check_pieces(self, blob: bytes) -> None:

@@ -566,3 +566,102 @@ def test_decompose_caps_hull_vertices(monkeypatch):
     with pytest.raises(BakeFailedError, match="more than the limit 1024") as e:
         decompose(np.asarray(ball.vertices), np.asarray(ball.faces))
     assert e.value.exit_code == EXIT_BAKE_FAILED
+
+
+# --------------------------------------------------------------------------- atlas work bound
+
+def _sliver_bundle(out: Path, slivers: int, w: int = 1024, h: int = 1024, seed: int = 0) -> Path:
+    """The cube bundle with a ``w`` x ``h`` atlas plus ``slivers`` coarse triangles (copies
+    of triangle 0) whose UV triangles are slivers 2 texels wide across the whole atlas
+    height, all overlapping: each one's texel bounding box is half the atlas, the texels
+    it reads are about 10 per row."""
+    hb.write_bundle(out, cube_data(w, h))
+    v, f, uv = hb.read_coarse_ply(out / "coarse.ply")
+    s = np.random.default_rng(seed).uniform(0.0, 0.5, slivers)
+    zero, one = np.zeros(slivers), np.ones(slivers)
+    tri = np.stack([np.stack([s, zero], -1), np.stack([s + 2.0 / w, zero], -1),
+                    np.stack([s + 0.5, one], -1)], 1)
+    faces = np.concatenate([f, np.repeat(f[:1], slivers, axis=0)])
+    hb.write_coarse_ply(out / "coarse.ply", v, faces,
+                        np.concatenate([uv.reshape(-1, 3, 2), tri.astype(np.float32)]))
+    m = json.loads((out / "manifest.json").read_text())
+    m["coarse"]["triangles"] = len(faces)
+    _rehash(out, m)
+    return out
+
+
+_WORK_BOUND = ("texel tests (16 per texel of the atlas + 64 per triangle): "
+               "UV triangles overlap or are slivers across the atlas")
+
+
+def test_validate_refuses_overlapping_sliver_uv_triangles(tmp_path):
+    """4,000 overlapping sliver UV triangles across a 1024 x 1024 atlas (a 470 KB bundle):
+    the footprint check visited each one's texel bounding box (half the atlas), 75 s
+    (`/usr/bin/time hbake validate`, this box) before accepting the bundle, which the C++
+    loader refuses. Now the rows and candidate texels are counted first and the bundle is
+    refused as the loader does, in about 1.1 s (0.9 s for the same bundle without the
+    slivers); the bound below is generous for loaded CI machines."""
+    b = _sliver_bundle(tmp_path / "slivers.hbundle", 4000)
+    t = time.perf_counter()
+    line = _validate(b, "atlas", _WORK_BOUND, timeout=60)
+    dt = time.perf_counter() - t
+    limit = 16 * 1024 * 1024 + 64 * (12 + 4000)
+    assert f"atlas.exr: the UV triangles need more than {limit} texel tests" in line, line
+    assert dt < 20, f"{dt:.1f} s"
+
+
+def test_atlas_work_bound_is_the_loaders_count(tmp_path):
+    """The count is the C++ loader's (runtime/src/io/bundle.cpp: rows and candidate texels
+    of the footprint and coverage passes): with this generator both readers accept 1308
+    slivers on a 1024 x 1024 atlas and refuse 1309 (checked with `hrt check` on the same
+    bundles with the atlas's A set to 1, so that the loader's coverage check does not stop
+    it first). A valid bundle needs 1.2-3.2 texel tests per texel (the golden bundles)."""
+    ok = _sliver_bundle(tmp_path / "ok.hbundle", 1308)
+    assert hb.validate_bundle(ok) == []
+    over = _sliver_bundle(tmp_path / "over.hbundle", 1309)
+    problems = hb.validate_bundle(over)
+    assert [p.cls for p in problems] == ["atlas"], problems
+    assert _WORK_BOUND in problems[0].message
+    assert f"more than {16 * 1024 * 1024 + 64 * (12 + 1309)} texel tests" in problems[0].message
+
+
+def _footprint_bbox_scan(uv_tri, width, height):
+    """The footprint test as it was (every texel of the triangle's bounding box)."""
+    p = hb.texel_coords(uv_tri, width, height)
+    lo = np.maximum(np.floor(p.min(axis=0)).astype(np.int64) - 1, [-1, -1])
+    hi = np.minimum(np.ceil(p.max(axis=0)).astype(np.int64) + 1, [width, height])
+    ci, cj = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="xy")
+    ci, cj = ci.ravel(), cj.ravel()
+    keep = ((ci >= p[:, 0].min() - 1) & (ci <= p[:, 0].max() + 1)
+            & (cj >= p[:, 1].min() - 1) & (cj <= p[:, 1].max() + 1))
+    for k in range(3):
+        a, b = p[k], p[(k + 1) % 3]
+        n = np.array([b[1] - a[1], a[0] - b[0]])
+        proj = p @ n
+        centre = ci * n[0] + cj * n[1]
+        r = abs(n[0]) + abs(n[1])
+        keep &= (centre + r >= proj.min()) & (centre - r <= proj.max())
+    return np.clip(ci[keep], 0, width - 1), np.clip(cj[keep], 0, height - 1)
+
+
+@pytest.mark.parametrize("w, h", [(40, 24), (17, 90), (1, 1)])
+def test_footprint_spans_equal_the_bounding_box_scan(w, h):
+    """Per row only the triangle's span is examined now; the texels (and their order and
+    multiplicity, which the messages count) are those of the whole bounding box, also for
+    vertices on the texel lattice (exact ties), slivers, degenerate and out-of-range UVs."""
+    rng = np.random.default_rng(w * h)
+    n = 150
+    lattice = np.stack([(rng.integers(-2, 2 * w + 3, (n, 3)) / 2 + 0.5) / w,
+                        1 - (rng.integers(-2, 2 * h + 3, (n, 3)) / 2 + 0.5) / h], -1)
+    a, b = rng.uniform(0, 1, (n, 1, 2)), rng.uniform(0, 1, (n, 1, 2))
+    kinds = [rng.uniform(0, 1, (n, 3, 2)), lattice,
+             rng.uniform(0, 1, (n, 1, 2)) + rng.normal(0, 3 / w, (n, 3, 2)),
+             np.concatenate([a, b, a + rng.normal(0, 1e-4, (n, 1, 2))], 1),
+             np.concatenate([a, b, (a + b) / 2], 1), rng.uniform(-0.5, 1.5, (n, 3, 2))]
+    uv = np.concatenate(kinds).astype(np.float32)
+    fp = hb._Footprints(uv, w, h)
+    got = [np.concatenate(x) for x in zip(*fp.visit())]
+    for t in range(len(uv)):
+        want = _footprint_bbox_scan(uv[t].astype(np.float64), w, h)
+        sel = got[0] == t
+        assert np.array_equal(got[1][sel], want[0]) and np.array_equal(got[2][sel], want[1]), (t, uv[t])
