@@ -210,7 +210,8 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
       rmax = std::max(rmax, std::hypot(x - cx, y - cy));
     }
     const double disp = std::max(du / cell, std::abs(2.0 * std::sin(0.5 * dth)) * rmax);
-    border = std::clamp(static_cast<int>(std::ceil(disp - 1e-9)), 1, N);
+    // Clamped in double first: disp can exceed int for a far c_A.
+    border = std::isnan(disp) ? N : static_cast<int>(std::clamp(std::ceil(disp - 1e-9), 1.0, static_cast<double>(N)));
   }
   ensure_capacity(scratch, N, border);
   const int S = N + 2 * border;

@@ -127,8 +127,12 @@ void raster_triangle(const Model& M, uint32_t f, const Placement& pl) {
   const double area2 = e1x * e2y - e2x * e1y;
   if (std::abs(area2) < kMinArea2) return;
   const double ymin = std::min({y[0], y[1], y[2]}), ymax = std::max({y[0], y[1], y[2]});
-  const int j0 = std::max(0, static_cast<int>(std::ceil(ymin - kEdgeEps)));
-  const int j1 = std::min(S - 1, static_cast<int>(std::floor(ymax + kEdgeEps)));
+  // Clamped to the grid in double before the conversion: a far vertex (the
+  // loader accepts any finite position) projects to ~1e10 texels, beyond int
+  // (found by the fuzz target; runtime/fuzz/regressions/depth-raster-*).
+  if (!(ymax + kEdgeEps >= 0) || !(ymin - kEdgeEps <= S - 1)) return;
+  const int j0 = static_cast<int>(std::ceil(std::max(ymin - kEdgeEps, 0.0)));
+  const int j1 = static_cast<int>(std::floor(std::min(ymax + kEdgeEps, static_cast<double>(S - 1))));
   if (j0 > j1) return;
   const double xmin = std::min({x[0], x[1], x[2]}), xmax = std::max({x[0], x[1], x[2]});
   if (xmax < -kEdgeEps || xmin > S - 1 + kEdgeEps) return;
@@ -161,8 +165,9 @@ void raster_triangle(const Model& M, uint32_t f, const Placement& pl) {
       xr = std::max(xr, xi);
     }
     if (!(xl <= xr)) continue;
-    const int i0 = std::max(0, static_cast<int>(std::ceil(xl - kEdgeEps)));
-    const int i1 = std::min(S - 1, static_cast<int>(std::floor(xr + kEdgeEps)));
+    if (!(xr + kEdgeEps >= 0) || !(xl - kEdgeEps <= S - 1)) continue;
+    const int i0 = static_cast<int>(std::ceil(std::max(xl - kEdgeEps, 0.0)));
+    const int i1 = static_cast<int>(std::floor(std::min(xr + kEdgeEps, static_cast<double>(S - 1))));
     if (i0 > i1) continue;
     double cax = ax[0] + dax_dx * (i0 - x[0]) + dax_dy * (j - y[0]);
     double cay = ay[0] + day_dx * (i0 - x[0]) + day_dy * (j - y[0]);
