@@ -68,7 +68,7 @@ clean:
 # with a persistent corpus outside the repository (FUZZ_DIR=).
 FUZZ_BUILD := build/fuzz
 FUZZ_BIN   := $(FUZZ_BUILD)/fuzz/hrt_fuzz_bundle
-FUZZ_RUNS  ?= 20000
+FUZZ_RUNS  ?= 40000
 FUZZ_OPTS  := -max_len=131072 -timeout=10 -rss_limit_mb=2048 -dict=$(CURDIR)/runtime/fuzz/bundle.dict -print_final_stats=1
 HOURS      ?= 1
 FUZZ_JOBS  ?= $(JOBS)
@@ -83,6 +83,7 @@ fuzz-build: apt
 test-fuzz: fuzz-build
 	rm -rf $(FUZZ_BUILD)/ci && mkdir -p $(FUZZ_BUILD)/ci/artifacts
 	cp -r $(FUZZ_BUILD)/fuzz/seed_corpus $(FUZZ_BUILD)/ci/corpus
+	find runtime/fuzz/regressions -name '*.bin' -exec cp {} $(FUZZ_BUILD)/ci/corpus/ \;
 	$(FUZZ_BIN) -seed=1 -runs=$(FUZZ_RUNS) $(FUZZ_OPTS) -artifact_prefix=$(CURDIR)/$(FUZZ_BUILD)/ci/artifacts/ $(FUZZ_BUILD)/ci/corpus
 
 # FUZZ_JOBS workers for HOURS each (a worker stops at its first finding; its
