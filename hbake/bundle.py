@@ -34,7 +34,8 @@ import numpy as np
 
 from . import constants as C
 from .errors import BakeFailedError, BundleError, OutputExistsError, OutputUnwritableError
-from .fileio import read_regular
+from .exrheader import ExrHeaderError, check_exr_header
+from .fileio import FileTooLargeError, read_regular
 
 __all__ = [
     "FORMAT_NAME", "FORMAT_VERSION", "FORMAT_MAJOR", "FILE_NAMES", "ERROR_CLASSES",
@@ -76,11 +77,22 @@ CONVEX_ABS_TOL = 1e-9
 # At most this many individual examples per kind of problem; the rest are counted.
 _MAX_EXAMPLES = 3
 
-#: manifest.json is refused past this size (hbake writes about 10 kB) and this nesting
+#: manifest.json is refused past this size (hbake writes about 10 kB; the C++ loader's
+#: limit, kMaxManifestBytes: 1 MiB of JSON is at most ~30 MB as its DOM) and this nesting
 #: depth (hbake's deepest field is 4 levels down; Python's json, jsonschema and repr()
 #: recurse once per level, so an unbounded depth ends in a RecursionError).
-MAX_MANIFEST_BYTES = 16 << 20
+MAX_MANIFEST_BYTES = 1 << 20
 MAX_JSON_DEPTH = 64
+#: format_version is at most this many characters (the C++ loader's kMaxVersionChars).
+MAX_VERSION_CHARS = 32
+#: Size limits of the bundle's files, checked before a byte is read (the C++ loader's
+#: kMaxPlyBytes and kMaxExrBytes: 1 GiB holds 28M coarse triangles; the atlas limit's
+#: 256 MiB of float32 texels is stored in at most slightly more).
+MAX_FILE_BYTES = {"coarse_mesh": 1 << 30, "atlas": 512 << 20, "pieces": 1 << 30}
+#: Largest atlas side the manifest's schema fields accept (the C++ loader's
+#: kMaxSchemaAtlasSide; the atlas limit proper, 8192, is class ``atlas``) and largest gutter.
+MAX_SCHEMA_ATLAS_SIDE = 65536
+MAX_GUTTER = 1 << 20
 
 _COARSE_HEADER = (
     "ply\n"
@@ -241,6 +253,91 @@ def _json_depth(value: Any) -> int:
     return depth
 
 
+def _too_large(e: FileTooLargeError) -> str:
+    """The C++ loader's wording for a file over its size limit."""
+    if e.size is None:
+        return f"more than the limit of {e.limit} bytes for this file"
+    return f"{e.size} bytes, more than the limit of {e.limit} bytes for this file"
+
+
+def _has_lone_surrogate(value: Any) -> bool:
+    """Whether a key or string of parsed JSON holds an unpaired UTF-16 surrogate (from a
+    ``\\ud800`` escape; iterative)."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, dict):
+            stack.extend(v.keys())
+            stack.extend(v.values())
+        elif isinstance(v, list):
+            stack.extend(v)
+        elif isinstance(v, str):
+            try:
+                v.encode("utf-8")
+            except UnicodeEncodeError:
+                return True
+    return False
+
+
+_INT64_MAX = (1 << 63) - 1
+#: Integer fields as the C++ loader reads them (manifest.cpp, Checker::integer): int64,
+#: or an integral double below 9e18; and the bounds it adds to the schema's.
+_LOADER_INTEGERS = {
+    ("source", "vertices"): None, ("source", "triangles"): None, ("source", "bodies"): None,
+    ("seeds", "coacd"): None, ("seeds", "quality"): None,
+    ("files", "coarse_mesh", "bytes"): None, ("files", "atlas", "bytes"): None,
+    ("files", "pieces", "bytes"): None,
+    ("files", "atlas", "width"): MAX_SCHEMA_ATLAS_SIDE, ("files", "atlas", "height"): MAX_SCHEMA_ATLAS_SIDE,
+    ("coarse", "vertices"): None, ("coarse", "triangles"): None, ("pieces", "count"): None,
+    ("atlas", "width"): MAX_SCHEMA_ATLAS_SIDE, ("atlas", "height"): MAX_SCHEMA_ATLAS_SIDE,
+    ("atlas", "gutter"): MAX_GUTTER,
+    ("quality", "reconstruction", "coarse_to_full", "samples"): None,
+    ("quality", "reconstruction", "full_to_coarse", "samples"): None,
+}
+_SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
+def _loader_schema_rules(m: dict) -> list[tuple[str, str]]:
+    """(path, message) for each rule of the C++ loader's manifest check that the JSON
+    Schema does not state (runtime/src/io/manifest.cpp), for a schema-valid manifest:
+    integers within int64 and its bounds on the atlas sides and gutter, SHA-256 digests of
+    exactly 64 hex digits (the schema's ``$`` also matches before a final newline), file
+    names without '..' or NUL, distinct file paths (none manifest.json)."""
+    out = []
+    for path, hi in _LOADER_INTEGERS.items():
+        x = m
+        for k in path:
+            x = x[k]
+        where = "/".join(path)
+        if isinstance(x, float):
+            if not abs(x) < 9.0e18:
+                out.append((where, f"{x!r} is out of range"))
+                continue
+            x_int = int(x)
+        else:
+            if x < -(1 << 63) or x >= 1 << 64:      # a double for nlohmann-json
+                out.append((where, f"{_short(x, 80)} is out of range"))
+                continue
+            x_int = x
+        limit = _INT64_MAX if hi is None else hi
+        if x_int > limit:
+            out.append((where, f"{_short(x, 80)} is greater than the maximum of {limit}"))
+    for where, v in [("source/sha256", m["source"]["sha256"])] + [
+            (f"files/{k}/sha256", m["files"][k]["sha256"]) for k in ("coarse_mesh", "atlas", "pieces")]:
+        if not _SHA256.fullmatch(v):
+            out.append((where, f"{_short(v, 80)} does not match '^[0-9a-f]{{64}}$'"))
+    for where, v in [("source/name", m["source"]["name"])] + [
+            (f"files/{k}/path", m["files"][k]["path"]) for k in ("coarse_mesh", "atlas", "pieces")]:
+        if v == ".":
+            out.append((where, "'.' should not be valid under {'enum': ['.', '..']}"))
+        elif ".." in v or "\0" in v:
+            out.append((where, f"{_short(v, 80)} contains '..' (a file name inside the bundle is required)"))
+    paths = [m["files"][k]["path"] for k in ("coarse_mesh", "atlas", "pieces")]
+    if len(set(paths)) < 3 or FILE_NAMES["manifest"] in paths:
+        out.append(("files", "two files have the same path (or one is manifest.json)"))
+    return out
+
+
 def _n(count: int, noun: str, plural: str | None = None) -> str:
     """'1 face', '3 faces'."""
     return f"{count} {noun if count == 1 else (plural or noun + 's')}"
@@ -304,7 +401,7 @@ _WORK_PER_TEXEL = 16
 _WORK_PER_TRIANGLE = 64
 # Widening (texels) of the per-row candidate spans, far above their rounding.
 _SPAN_PAD = 1e-6
-# The loader's coverage-check margin (texels); used here only to count that check's work.
+# The loader's coverage-check margin (texels): see _coverage_check.
 _COVERAGE_MARGIN = 1e-3
 # Batch sizes of the vectorized footprint passes (rows, candidate texels).
 _ROW_BATCH = 1 << 16
@@ -441,15 +538,24 @@ class _Footprints:
                 yield self.texels(tri[c:d], j[c:d], ia[c:d], count[c:d])
 
 
-def _coverage_work(uv_tris: np.ndarray, width: int, height: int, budget: int) -> int:
-    """Rows and candidate texels that the C++ loader's coverage check (A = 1 exactly where
-    a texel centre lies inside a UV triangle) examines, counted as it does; stops counting
-    once past ``budget``. This reader does not run that check, but counts its work so that
-    both readers refuse the same bundles for the work bound."""
+def _coverage_check(uv_tris: np.ndarray, width: int, height: int, alpha: np.ndarray | None,
+                    budget: int):
+    """The C++ loader's coverage check (runtime/src/io/bundle.cpp, check_atlas_texels): a
+    texel whose centre lies more than _COVERAGE_MARGIN texels inside a UV triangle must have
+    A = 1, and a texel with A = 1 must have its centre inside some UV triangle or within the
+    margin of one (centres within the margin of an edge may go either way: the stored UVs
+    are float32 and the writer may rasterise the unrounded ones).
+
+    Examines per row only the candidate centres that each edge's signed distance allows, and
+    counts the rows and candidates as the loader does; stops once the count is past
+    ``budget``. Returns (work, first, near): ``first`` = (triangle of ``uv_tris``, i, j) of
+    the first texel inside a triangle without A = 1 in the loader's order (by triangle, row,
+    column), else None; ``near`` the (H, W) mask of centres inside or within the margin of
+    some triangle. ``alpha`` None: count the work only."""
     px = uv_tris[:, :, 0].astype(np.float64) * width
     py = (1.0 - uv_tris[:, :, 1].astype(np.float64)) * height
     area2 = (px[:, 1] - px[:, 0]) * (py[:, 2] - py[:, 0]) - (px[:, 2] - px[:, 0]) * (py[:, 1] - py[:, 0])
-    keep = area2 != 0
+    keep = np.flatnonzero(area2 != 0)
     px, py, area2 = px[keep], py[keep], area2[keep]
     m = _COVERAGE_MARGIN
     i0 = _int_clip(np.ceil(px.min(axis=1) - m - 0.5), 0, width)
@@ -458,8 +564,10 @@ def _coverage_work(uv_tris: np.ndarray, width: int, height: int, budget: int) ->
     j1 = _int_clip(np.floor(py.max(axis=1) + m - 0.5), -1, height - 1)
     rows = np.maximum(j1 - j0 + 1, 0)
     work = int(rows.sum())
+    near = None if alpha is None else np.zeros((height, width), dtype=bool)
+    first = None
     if work > budget:
-        return work
+        return work, first, near
     sgn = np.where(area2 > 0, 1.0, -1.0)
     ex = np.roll(px, -1, axis=1) - px
     ey = np.roll(py, -1, axis=1) - py
@@ -482,10 +590,37 @@ def _coverage_work(uv_tris: np.ndarray, width: int, height: int, budget: int) ->
         ok = lo <= hi
         ia = np.maximum(i0[t], _int_clip(np.ceil(np.where(ok, lo, 0) - 0.5), -1, width + 1))
         ib = np.minimum(i1[t], _int_clip(np.floor(np.where(ok, hi, 0) - 0.5), -1, width + 1))
-        work += int(np.where(ok, np.maximum(ib - ia + 1, 0), 0).sum())
+        count = np.where(ok, np.maximum(ib - ia + 1, 0), 0)
+        work += int(count.sum())
         if work > budget:
             break
-    return work
+        if alpha is None:
+            continue
+        for c, d in _batches(count, _TEXEL_BATCH):
+            row, ci = _expand(ia[c:d], count[c:d])
+            tt, jj = t[c:d][row], j[c:d][row]
+            cx = ci + 0.5
+            cyy = jj + 0.5
+            dist = np.full(len(ci), np.inf)
+            for k in range(3):
+                dk = s[c:d][row] * (ex[tt, k] * (cyy - py[tt, k]) - ey[tt, k] * (cx - px[tt, k])) / el[tt, k]
+                dist = np.minimum(dist, dk)
+            inside = dist >= -m
+            near[jj[inside], ci[inside]] = True
+            if first is None:
+                bad = np.flatnonzero((dist > m) & (alpha[jj, ci] != 1))
+                if len(bad):
+                    q = bad[0]
+                    first = (int(keep[tt[q]]), int(ci[q]), int(jj[q]))
+        if first is not None:
+            break
+    return work, first, near
+
+
+def _coverage_work(uv_tris: np.ndarray, width: int, height: int, budget: int) -> int:
+    """Rows and candidate texels that the C++ loader's coverage check examines, counted as
+    it does (see _coverage_check); stops counting once past ``budget``."""
+    return _coverage_check(uv_tris, width, height, None, budget)[0]
 
 
 def _footprint_texels(uv_tri: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -541,7 +676,7 @@ def _match_header(lines: list[str], template: str, name: str, add) -> dict[str, 
         if "{" in exp:  # "element vertex {n}": the count is the last word
             prefix, key = exp[:exp.index("{")], exp[exp.index("{") + 1:exp.index("}")]
             digits = got[len(prefix):] if got.startswith(prefix) else ""
-            if not re.fullmatch(r"0|[1-9][0-9]{0,11}", digits):
+            if not re.fullmatch(r"0|[1-9][0-9]{0,9}", digits) or int(digits) > 0xFFFFFFFF:
                 add(f"{name}: PLY header line {line_no} is {got!r}, expected {prefix + key.upper()!r}")
                 raise _Fail
             counts[key] = int(digits)
@@ -984,6 +1119,9 @@ def write_bundle(path: str | os.PathLike, data: BundleData, *, force: bool = Fal
 #: the convexity test is vertices x faces per piece, so this bounds it at 1024 plane
 #: tests per face, linear in the file.
 MAX_PIECE_VERTICES = 1024
+#: Most faces of one convex piece (the C++ loader's kMaxPieceFaces): a closed convex
+#: triangulated polyhedron of V vertices has 2 V - 4 faces.
+MAX_PIECE_FACES = 2 * MAX_PIECE_VERTICES - 4
 #: Plane tests per batch of the convexity check: the (faces x vertices) distance
 #: matrices of a batch take 8 bytes per test, twice (8 MiB x 2 at 2^20).
 _CONVEX_BATCH = 1 << 20
@@ -1190,6 +1328,9 @@ class _Checker:
         except FileNotFoundError:
             self.add("io", "manifest.json: missing")
             return False
+        except FileTooLargeError as e:
+            self.add("io", f"manifest.json: {_too_large(e)}")
+            return False
         except OSError as e:
             self.add("io", f"manifest.json: cannot read: {e.strerror}")
             return False
@@ -1204,8 +1345,15 @@ class _Checker:
                 raise ValueError(f"number {_short(text)} is out of range")
             return x
 
+        def finite_int(text: str) -> int:
+            # an integer literal past the double range is an overflow for nlohmann-json
+            if len(text) > 300 and not np.isfinite(float(text)):
+                raise ValueError(f"number {_short(text)} is out of range")
+            return int(text)
+
         try:
-            m = json.loads(raw.decode("utf-8"), parse_constant=no_constants, parse_float=finite_float)
+            m = json.loads(raw.decode("utf-8"), parse_constant=no_constants, parse_float=finite_float,
+                           parse_int=finite_int)
         except RecursionError:
             # the json module recurses once per level; the limit below stops what it survives
             self.add("schema", f"manifest.json: nested deeper than {MAX_JSON_DEPTH} levels")
@@ -1221,6 +1369,11 @@ class _Checker:
             # overflow the stack there instead
             self.add("schema", f"manifest.json: nested deeper than {MAX_JSON_DEPTH} levels")
             return False
+        if _has_lone_surrogate(m):
+            # "\ud800" alone: Python's json keeps it, JSON (and nlohmann-json) refuses it
+            self.add("schema", "manifest.json: not valid UTF-8 JSON: a string has a \\u escape of "
+                     "a lone UTF-16 surrogate")
+            return False
         # Format and version first: a bundle of another major version may have
         # another schema, so its schema errors would only hide the real problem.
         if m.get("format") != FORMAT_NAME:
@@ -1229,8 +1382,10 @@ class _Checker:
             return False
         ver = m.get("format_version")
         mm = re.fullmatch(r"([0-9]+)\.([0-9]+)", ver) if isinstance(ver, str) else None
-        if mm is None:
-            self.add("version", f"manifest.json: format_version {_short(ver)} is not MAJOR.MINOR")
+        if mm is None or len(ver) > MAX_VERSION_CHARS:
+            self.add("version", f"manifest.json: format_version {_short(ver)} is not MAJOR.MINOR"
+                     + (f" (at most {MAX_VERSION_CHARS} characters)"
+                        if isinstance(ver, str) and len(ver) > MAX_VERSION_CHARS else ""))
             return False
         # Compared as digits: int() refuses more than 4300 of them (and would gain nothing).
         if (mm.group(1).lstrip("0") or "0") != str(FORMAT_MAJOR):
@@ -1251,6 +1406,11 @@ class _Checker:
             self.add("schema", f"manifest.json: {where}: {msg}")
         if errors:
             return False
+        extra = _loader_schema_rules(m)
+        for where, msg in extra:
+            self.add("schema", f"manifest.json: {where}: {msg}")
+        if extra:
+            return False
         self.manifest = m
         return True
 
@@ -1259,9 +1419,12 @@ class _Checker:
         entry = self.manifest["files"][key]
         p = self.path / entry["path"]
         try:
-            blob = read_regular(p)
+            blob = read_regular(p, MAX_FILE_BYTES[key])
         except FileNotFoundError:
             self.add("io", f"{entry['path']}: missing ({key} file named by the manifest)")
+            return None
+        except FileTooLargeError as e:
+            self.add("io", f"{entry['path']}: {_too_large(e)}")
             return None
         except IsADirectoryError:
             self.add("io", f"{entry['path']}: is a directory, not a file")
@@ -1347,8 +1510,11 @@ class _Checker:
             return
         ex = _exr()
         p = self.path / name
-        if not blob.startswith(b"\x76\x2f\x31\x01"):
-            add(f"{name}: not an OpenEXR file (bad magic number)")
+        # The C++ loader's walk of the header, before OpenEXR allocates what it claims.
+        try:
+            check_exr_header(blob, entry["width"], entry["height"])
+        except ExrHeaderError as e:
+            add(f"{name}: {e}")
             return
         f, why = _open_exr(p, header_only=True)
         if f is None:
@@ -1501,8 +1667,21 @@ class _Checker:
             j, i = stray[0]
             self.add("atlas", f"{name}: {_n(len(stray), 'non-finite texel')} outside every UV triangle's "
                      f"footprint (first: texel ({i}, {j})); unused texels must hold 0")
-        if work + _coverage_work(uv[tris], w, h, limit - work) > limit:
+        # Coverage against the UVs (the loader's check: A = 1 exactly where a texel centre
+        # lies inside a UV triangle, within its margin)
+        cov_work, bad, near = _coverage_check(uv[tris], w, h, atlas[:, :, 3], limit - work)
+        if bad is not None:
+            t, i, j = bad
+            self.add("atlas", f"{name}: texel ({i}, {j}) has its centre inside the UV triangle of "
+                     f"coarse face {int(tris[t])} but coverage A = {float(atlas[j, i, 3]):.9g} (must be 1)")
+        elif work + cov_work > limit:
             self.add("atlas", _work_problem(name, limit))
+        else:
+            lone = np.argwhere((atlas[:, :, 3] == 1) & ~near)
+            if len(lone):
+                j, i = lone[0]
+                self.add("atlas", f"{name}: texel ({i}, {j}) has coverage A = 1 but its centre lies "
+                         "in no UV triangle of the coarse mesh")
 
     # -- pieces -------------------------------------------------------------------
     def check_pieces(self, blob: bytes) -> None:
@@ -1569,10 +1748,12 @@ class _Checker:
         big_mask = ~small_mask & (nv > MAX_PIECE_VERTICES)
         small = [(int(k), int(nv[k]), int(nf[k])) for k in np.flatnonzero(small_mask)]
         big = [(int(k), int(nv[k])) for k in np.flatnonzero(big_mask)]
+        bigf_mask = ~small_mask & ~big_mask & (nf > MAX_PIECE_FACES)
+        bigf = [(int(k), int(nf[k])) for k in np.flatnonzero(bigf_mask)]
         open_, inward, nonconvex, degen = [], [], [], []
         if self.invariants:
             # in chunks of whole pieces, so the temporaries stay bounded (_CHUNK_FACES)
-            check = ~small_mask & ~big_mask
+            check = ~small_mask & ~big_mask & ~bigf_mask
             k0 = 0
             while k0 < p:
                 k1 = int(np.searchsorted(fstart, fstart[k0] + _CHUNK_FACES, side="right")) - 1
@@ -1594,6 +1775,11 @@ class _Checker:
             add(f"{name}: {_n(len(big), 'piece')} over the vertex limit: "
                 + _examples(big, lambda x: f"piece {x[0]} has {x[1]} vertices, more than the "
                             f"limit {MAX_PIECE_VERTICES}"))
+        if bigf:
+            add(f"{name}: {_n(len(bigf), 'piece')} over the face limit: "
+                + _examples(bigf, lambda x: f"piece {x[0]} has {x[1]} faces, more than the limit "
+                            f"{MAX_PIECE_FACES} (a convex piece of at most {MAX_PIECE_VERTICES} "
+                            f"vertices has at most {MAX_PIECE_FACES} triangles)"))
         if open_:
             add(f"{name}: {_n(len(open_), 'piece')} not a closed, consistently wound polyhedron: "
                 + _examples(open_, lambda k: f"piece {k}"))

@@ -22,7 +22,11 @@ class NotRegularFileError(OSError):
 
 
 class FileTooLargeError(OSError):
-    """The file is larger than the reader's limit."""
+    """The file is larger than the reader's limit (``size``: its size in bytes, or None
+    when it grew past the limit while being read; ``limit``: the limit)."""
+
+    size: int | None = None
+    limit: int | None = None
 
 
 def file_kind(mode: int) -> str:
@@ -41,8 +45,10 @@ def _check(st: os.stat_result, path, limit: int | None) -> None:
         raise NotRegularFileError(errno.EINVAL, f"not a regular file (it is {file_kind(st.st_mode)})",
                                   str(path))
     if limit is not None and st.st_size > limit:
-        raise FileTooLargeError(errno.EFBIG, f"file is {st.st_size:,} bytes, more than the limit "
-                                f"of {limit:,} bytes", str(path))
+        e = FileTooLargeError(errno.EFBIG, f"file is {st.st_size:,} bytes, more than the limit "
+                              f"of {limit:,} bytes", str(path))
+        e.size, e.limit = st.st_size, limit
+        raise e
 
 
 def check_regular(path: str | os.PathLike, limit: int | None = None) -> os.stat_result:
@@ -66,6 +72,8 @@ def read_regular(path: str | os.PathLike, limit: int | None = None) -> bytes:
         if fd >= 0:
             os.close(fd)
     if limit is not None and len(data) > limit:      # it grew after fstat
-        raise FileTooLargeError(errno.EFBIG, f"file is more than the limit of {limit:,} bytes",
-                                str(path))
+        e = FileTooLargeError(errno.EFBIG, f"file is more than the limit of {limit:,} bytes",
+                              str(path))
+        e.limit = limit
+        raise e
     return data

@@ -100,13 +100,18 @@ def test_validate_huge_format_version_is_a_version_error(cube):
     m = json.loads((cube / "manifest.json").read_text())
     m["format_version"] = "1" * 26_500 + ".0"
     (cube / "manifest.json").write_bytes(hb.manifest_bytes(m))
-    line = _validate(cube, "version", "unsupported major version")
+    line = _validate(cube, "version", "is not MAJOR.MINOR (at most 32 characters)")
     assert len(line) < 400
 
 
-def test_validate_huge_major_one_with_zeros_is_accepted_as_one(cube):
+def test_validate_long_major_one_with_zeros_is_refused_like_the_loader(cube):
+    # the C++ loader caps format_version at 32 characters (issue 7: hbake refuses what it
+    # refuses); up to that, leading zeros are compared as digits: still version 1
     m = json.loads((cube / "manifest.json").read_text())
-    m["format_version"] = "0" * 5000 + "1.0"       # int() of it is 1: still version 1
+    m["format_version"] = "0" * 5000 + "1.0"
+    (cube / "manifest.json").write_bytes(hb.manifest_bytes(m))
+    _validate(cube, "version", "(at most 32 characters)")
+    m["format_version"] = "0" * 29 + "1.0"
     (cube / "manifest.json").write_bytes(hb.manifest_bytes(m))
     assert hb.validate_bundle(cube) == []
 
@@ -233,11 +238,16 @@ def _set_atlas_size(bundle: Path, w: int, h: int) -> None:
     _rehash(bundle, m)
 
 
-@pytest.mark.parametrize("w, h", [(8193, 16), (16, 100_000), (8192, 4096), (10**30, 1)])
-def test_validate_refuses_an_atlas_over_the_limit_before_decoding(cube, w, h):
+@pytest.mark.parametrize("w, h, cls", [(8193, 16, "atlas"), (16, 100_000, "schema"),
+                                       (8192, 4096, "atlas"), (10**30, 1, "schema")])
+def test_validate_refuses_an_atlas_over_the_limit_before_decoding(cube, w, h, cls):
+    # sides past 65536 are a schema error, as in the C++ loader (issue 7)
     _set_atlas_size(cube, w, h)
-    line = _validate(cube, "atlas", "limit")
-    assert f"{w}x{h}" in line
+    if cls == "atlas":
+        line = _validate(cube, "atlas", "limit")
+        assert f"{w}x{h}" in line
+    else:
+        _validate(cube, "schema", "files/atlas/", "65536" if w < 10**20 else "out of range")
 
 
 @pytest.mark.parametrize("option, rc", [("8193", EXIT_USAGE), ("8192x4096", EXIT_USAGE),
@@ -614,11 +624,11 @@ def test_atlas_work_bound_is_the_loaders_count(tmp_path):
     """The count is the C++ loader's (runtime/src/io/bundle.cpp: rows and candidate texels
     of the footprint and coverage passes): with this generator both readers accept 1308
     slivers on a 1024 x 1024 atlas and refuse 1309 (checked with `hrt check` on the same
-    bundles with the atlas's A set to 1, so that the loader's coverage check does not stop
-    it first). A valid bundle needs 1.2-3.2 texel tests per texel (the golden bundles)."""
-    ok = _sliver_bundle(tmp_path / "ok.hbundle", 1308)
+    bundles; their A is set to the UVs' coverage, so that the coverage check, the loader's
+    and now hbake's, does not stop them first). A valid bundle needs 1.2-3.2 texel tests per texel (the golden bundles)."""
+    ok = _with_coverage_of_the_uvs(_sliver_bundle(tmp_path / "ok.hbundle", 1308))
     assert hb.validate_bundle(ok) == []
-    over = _sliver_bundle(tmp_path / "over.hbundle", 1309)
+    over = _with_coverage_of_the_uvs(_sliver_bundle(tmp_path / "over.hbundle", 1309))
     problems = hb.validate_bundle(over)
     assert [p.cls for p in problems] == ["atlas"], problems
     assert _WORK_BOUND in problems[0].message
@@ -665,3 +675,21 @@ def test_footprint_spans_equal_the_bounding_box_scan(w, h):
         want = _footprint_bbox_scan(uv[t].astype(np.float64), w, h)
         sel = got[0] == t
         assert np.array_equal(got[1][sel], want[0]) and np.array_equal(got[2][sel], want[1]), (t, uv[t])
+
+
+# --------------------------------------------------------------------------- issue 7: validate refuses what the loader refuses
+
+def _with_coverage_of_the_uvs(bundle: Path) -> Path:
+    """The bundle with A = 1 at exactly the texels whose centre lies inside (or within the
+    margin of) a UV triangle, so that the coverage check (the C++ loader's, now also
+    hbake's) passes; RGB unchanged."""
+    m = json.loads((bundle / "manifest.json").read_text())
+    atlas = hb.read_atlas_exr(bundle / "atlas.exr")
+    _, _, uv = hb.read_coarse_ply(bundle / "coarse.ply")
+    h, w = atlas.shape[:2]
+    # with A = 1 everywhere no texel stops the check early: `near` is complete
+    near = hb._coverage_check(uv.reshape(-1, 3, 2), w, h, np.ones((h, w), np.float32), 1 << 62)[2]
+    atlas[:, :, 3] = near
+    hb.write_atlas_exr(bundle / "atlas.exr", atlas, compression=m["files"]["atlas"]["compression"])
+    _rehash(bundle, m)
+    return bundle
