@@ -102,8 +102,7 @@ def check_exr_header(b: bytes, width: int, height: int) -> None:
         if count >= MAX_ATTRIBUTES:
             raise ExrHeaderError(f"{_BAD}more than {MAX_ATTRIBUTES} attributes")
         count += 1
-        # "type type": the C++ loader's wording, kept so that both readers print one line
-        name, typ = cstr("name"), cstr("type type")
+        name, typ = cstr("name"), cstr("type name")
         what = f"attribute '{_printable(name)}' ({_printable(typ)})"
         if n - p < 4:
             raise ExrHeaderError(f"{_BAD}the header is truncated in {what}")

@@ -226,6 +226,11 @@ TEST_F(Reliability, ExrCountsInsideAttributesBounded) {
               insert_attr(exr, content_.height, "preview", "preview", u32_bytes(20000) + u32_bytes(20000) + std::string(16, '\0')));
   rehash(dir_);
   expect_refused("atlas", "attribute 'preview' (preview) claims 20000 x 20000 pixels");
+  // 2^31 x 2^31 pixels in 8 bytes: w h 4 + 8 wraps to 8 in 64 bits.
+  write_bytes(dir_ + "/atlas.exr",
+              insert_attr(exr, content_.height, "preview", "preview", u32_bytes(1u << 31) + u32_bytes(1u << 31)));
+  rehash(dir_);
+  expect_refused("atlas", "attribute 'preview' (preview) claims 2147483648 x 2147483648 pixels in 8 bytes");
   write_bytes(dir_ + "/atlas.exr",
               insert_attr(exr, content_.height, "multiView", "stringvector", u32_bytes(1000000000) + "left"));
   rehash(dir_);

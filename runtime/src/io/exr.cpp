@@ -137,7 +137,7 @@ void check_header_bounds(const std::string& b, const std::string& label, const A
     if (p >= n) fail(label, bad + "the header is truncated (no end-of-header byte)");
     if (b[p] == '\0') break;
     if (count >= kMaxAttributes) fail(label, bad + "more than " + std::to_string(kMaxAttributes) + " attributes");
-    const std::string name = cstr("name"), type = cstr("type type");
+    const std::string name = cstr("name"), type = cstr("type name");
     const std::string what = "attribute '" + printable(name) + "' (" + printable(type) + ")";
     if (n - p < 4) fail(label, bad + "the header is truncated in " + what);
     const int32_t size = get_i32(b, p);
@@ -152,7 +152,8 @@ void check_header_bounds(const std::string& b, const std::string& label, const A
     if (type == "preview") {
       if (vs < 8) fail(label, bad + what + " has " + std::to_string(vs) + " bytes (at least 8 needed)");
       const uint64_t w = get_u32(b, v), h = get_u32(b, v + 4);
-      if (w * h * 4 + 8 != vs) {
+      // In 128 bits: w h 4 + 8 overflows 64 bits for w, h near 2^32.
+      if (static_cast<unsigned __int128>(w) * h * 4 + 8 != vs) {
         fail(label, bad + what + " claims " + std::to_string(w) + " x " + std::to_string(h) + " pixels in " +
                         std::to_string(vs) + " bytes");
       }
