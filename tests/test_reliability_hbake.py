@@ -196,10 +196,13 @@ def test_validate_still_finds_a_nonconvex_piece_among_many(cube):
 
 def _time_validate(bundle: Path) -> tuple[float, float]:
     """(wall seconds, peak RSS MiB) of `hbake validate` in a fresh process."""
-    code = ("import resource, sys, time; from hbake.bundle import validate_bundle; "
+    # Peak RSS from VmHWM of the new process image: ru_maxrss survives execve on
+    # Linux, so after a fork of a big pytest process it would report the parent's.
+    code = ("import re, sys, time; from hbake.bundle import validate_bundle; "
             "t = time.perf_counter(); p = validate_bundle(sys.argv[1]); "
             "dt = time.perf_counter() - t; "
-            "print(dt, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, len(p))")
+            "hwm = int(re.search(r'VmHWM:\\s+(\\d+)', open('/proc/self/status').read()).group(1)); "
+            "print(dt, hwm / 1024, len(p))")
     r = subprocess.run([sys.executable, "-c", code, str(bundle)], capture_output=True, text=True,
                        timeout=120)
     assert r.returncode == 0, r.stderr
