@@ -211,16 +211,6 @@ def _time_validate(bundle: Path) -> tuple[float, float]:
     return float(dt), float(rss)
 
 
-def test_validate_time_is_linear_in_many_small_pieces(cube):
-    """A 2 MB pieces.ply of small pieces: the convexity check used to build one
-    vertices x faces matrix per piece in a Python loop (and, before that, one for all)."""
-    size = write_pieces(cube, many_small_pieces(6000))
-    assert size > 1.5e6
-    dt, rss = _time_validate(cube)
-    print(f"{size / 1e6:.1f} MB of pieces: {dt:.2f} s, peak RSS {rss:.0f} MiB")
-    assert dt < 2.0 and rss < 400
-
-
 def test_validate_time_is_bounded_for_one_huge_piece(cube):
     """One piece of 40,000 vertices (2 MB): refused by the vertex limit at once, instead
     of a 40,000 x 80,000 distance matrix (25 GB)."""
