@@ -1462,6 +1462,11 @@ class _Checker:
         if len(bad):
             add(f"{name}: {_n(len(bad), 'vertex', 'vertices')} with non-finite positions: "
                 + _examples(list(bad), lambda k: f"vertex {k} = {v[k].tolist()}"))
+        with np.errstate(invalid="ignore"):
+            far = np.flatnonzero(np.any(np.abs(v) > C.MAX_COORDINATE, axis=1))
+        if len(far):
+            add(f"{name}: {_n(len(far), 'vertex', 'vertices')} farther than 10000 m from the origin along "
+                "an axis: " + _examples(list(far), lambda k: f"vertex {k} = {v[k].tolist()}"))
         oob = np.flatnonzero(np.any(f >= n, axis=1))
         if len(oob):
             add(f"{name}: {_n(len(oob), 'face')} with a vertex index out of range (vertex count {n}): "
@@ -1667,6 +1672,12 @@ class _Checker:
             j, i = stray[0]
             self.add("atlas", f"{name}: {_n(len(stray), 'non-finite texel')} outside every UV triangle's "
                      f"footprint (first: texel ({i}, {j})); unused texels must hold 0")
+        with np.errstate(invalid="ignore"):
+            far_texels = np.argwhere(finite & np.any(np.abs(atlas[:, :, :3]) > C.MAX_COORDINATE, axis=2))
+        if len(far_texels):
+            j, i = far_texels[0]
+            self.add("atlas", f"{name}: {_n(len(far_texels), 'texel')} with a position farther than 10000 m "
+                     f"from the origin along an axis (first: texel ({i}, {j}))")
         # Coverage against the UVs (the loader's check: A = 1 exactly where a texel centre
         # lies inside a UV triangle, within its margin)
         cov_work, bad, near = _coverage_check(uv[tris], w, h, atlas[:, :, 3], limit - work)
@@ -1731,6 +1742,12 @@ class _Checker:
         bad = np.flatnonzero(~np.all(np.isfinite(v), axis=1))
         if len(bad):
             add(f"{name}: {_n(len(bad), 'vertex', 'vertices')} with non-finite positions (first: vertex {bad[0]})")
+            structural_ok = False
+        with np.errstate(invalid="ignore"):
+            far = np.flatnonzero(np.any(np.abs(v) > C.MAX_COORDINATE, axis=1))
+        if len(far):
+            add(f"{name}: {_n(len(far), 'vertex', 'vertices')} farther than 10000 m from the origin along "
+                f"an axis (first: vertex {far[0]})")
             structural_ok = False
         m_coarse = len(self.coarse[1]) if self.coarse is not None else self.manifest["coarse"]["triangles"]
         self._check_maps(name, add, maps, m_coarse)

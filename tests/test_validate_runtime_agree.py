@@ -323,6 +323,35 @@ def _cover_outside(atlas, b):
     atlas[0, 0, 3] = 1.0
 
 
+def _far_texel(value: float):
+    # a covered texel's position at `value` m along x (the coordinate limit is 1e4 m)
+    def edit(atlas, b):
+        i, j = _inside_centre(b)
+        atlas[j, i, 0] = value
+    return edit
+
+
+# Coordinates (the input contract's 1e4 m).
+
+def _far_coarse_vertex(b: Path) -> None:
+    v, f, uv = hb.read_coarse_ply(b / "coarse.ply")
+    v = np.array(v, dtype=np.float64)
+    v[0, 2] = 2e4
+    hb.write_coarse_ply(b / "coarse.ply", v, f, uv)
+    _rehash(b)
+
+
+def _far_piece_vertex(b: Path) -> None:
+    v, vid, f, fid, maps = hb.read_pieces_ply(b / "pieces.ply")
+    v = np.array(v, dtype=np.float64)
+    v[0, 1] = -2e4
+    pv = [v[vid == k] for k in range(len(maps))]
+    first = [int(np.flatnonzero(vid == k)[0]) for k in range(len(maps))]
+    pf = [np.asarray(f)[np.asarray(fid) == k] - first[k] for k in range(len(maps))]
+    hb.write_pieces_ply(b / "pieces.ply", pv, pf, maps)
+    _rehash(b)
+
+
 # Pieces.
 
 def _pieces(extra_face: bool):
@@ -436,6 +465,12 @@ VARIANTS = [
     # coverage against the UVs (the loader's check)
     ("coverage_missing_inside", _atlas_edit(_clear_inside), "atlas"),
     ("coverage_outside_every_triangle", _atlas_edit(_cover_outside), "atlas"),
+    # coordinates within 1e4 m of the origin (a texel at the limit must still run: the
+    # frame rasterizes its height, 1e4 m from the patch)
+    ("atlas_texel_at_9999_m", _atlas_edit(_far_texel(9999.0)), None),
+    ("atlas_texel_at_10001_m", _atlas_edit(_far_texel(10001.0)), "atlas"),
+    ("coarse_vertex_at_2e4_m", _far_coarse_vertex, "mesh"),
+    ("piece_vertex_at_2e4_m", _far_piece_vertex, "pieces"),
     # piece faces
     ("piece_2044_faces", _pieces(False), None),
     ("piece_2045_faces", _pieces(True), "pieces"),

@@ -422,3 +422,27 @@ TEST(ReliabilityExport, ManyPiecesBundle) {
 }
 
 }  // namespace
+
+namespace {
+
+// Positions farther than 1e4 m from the origin along an axis (hbake's input
+// limit, docs/input-contract.md) are refused in each file; a fuzz input with a
+// coarse vertex 1e7 m away reached an int overflow in the rasterizer.
+TEST_F(Reliability, CoordinatesWithinTheContract) {
+  write_bundle(dir_, content_);
+  EXPECT_NO_THROW(hrt::load_bundle(dir_));
+  BundleContent c = content_;
+  c.vertices[0][2] = 2e4f;
+  write_bundle(dir_, c);
+  expect_refused("mesh", "1 vertex farther than 10000 m from the origin along an axis: vertex 0");
+  c = content_;
+  c.piece_vertices[0][0][1] = -2e4f;
+  write_bundle(dir_, c);
+  expect_refused("pieces", "1 vertex farther than 10000 m from the origin along an axis (first: vertex 0)");
+  c = content_;
+  c.rgba[0] = 1e7f;  // texel (0, 0), R
+  write_bundle(dir_, c);
+  expect_refused("atlas", "1 texel with a position farther than 10000 m from the origin along an axis (first: texel (0, 0))");
+}
+
+}  // namespace

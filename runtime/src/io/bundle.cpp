@@ -111,6 +111,16 @@ std::string tri_list(const Tri& t) { return "[" + s(t[0]) + ", " + s(t[1]) + ", 
 
 bool finite3(const std::array<float, 3>& p) { return std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]); }
 
+// Positions (coarse and piece vertices, atlas RGB) lie within this many
+// meters of the object origin on each axis: hbake's input limit
+// (hbake/constants.py MAX_COORDINATE, docs/input-contract.md). Farther ones
+// are no haptic object, and they drive the frame's rasterizer and forces
+// into magnitudes nothing downstream is made for.
+constexpr double kMaxCoordinate = 1e4;
+bool far3(const std::array<float, 3>& p) {
+  return std::abs(p[0]) > kMaxCoordinate || std::abs(p[1]) > kMaxCoordinate || std::abs(p[2]) > kMaxCoordinate;
+}
+
 Vec3 to_vec3(const std::array<float, 3>& p) { return Vec3(p[0], p[1], p[2]); }
 
 // ---- coarse mesh --------------------------------------------------------------
@@ -133,6 +143,14 @@ void load_coarse(Model& model, const io::CoarsePly& ply, const io::ManifestInfo&
       const auto& v = ply.vertices[bad.first];
       fail(count_of(bad.count, "vertex", "vertices") + " with non-finite positions: vertex " + s(bad.first) + " = [" +
            fmt("%g", v[0]) + ", " + fmt("%g", v[1]) + ", " + fmt("%g", v[2]) + "]");
+    }
+    First far;
+    for (size_t i = 0; i < n; ++i)
+      if (far3(ply.vertices[i])) far.add(i);
+    if (far) {
+      const auto& v = ply.vertices[far.first];
+      fail(count_of(far.count, "vertex", "vertices") + " farther than 10000 m from the origin along an axis: vertex " +
+           s(far.first) + " = [" + fmt("%g", v[0]) + ", " + fmt("%g", v[1]) + ", " + fmt("%g", v[2]) + "]");
     }
   }
   {
@@ -363,6 +381,16 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
     fail(count_of(stray.count, "non-finite texel") + " outside every UV triangle's footprint (first: " +
          texel_str(static_cast<int>(stray.first % W), static_cast<int>(stray.first / W)) + "); unused texels must hold 0");
   }
+  First far;
+  for (int j = 0; j < H; ++j)
+    for (int i = 0; i < W; ++i) {
+      const float* t = a.texel(i, j);
+      if (finite[at(i, j)] && far3({t[0], t[1], t[2]})) far.add(at(i, j));
+    }
+  if (far) {
+    fail(count_of(far.count, "texel") + " with a position farther than 10000 m from the origin along an axis (first: " +
+         texel_str(static_cast<int>(far.first % W), static_cast<int>(far.first / W)) + ")");
+  }
 
   // Coverage against the UVs (the spec: A = 1 exactly where the texel centre
   // lies inside a UV triangle). Texel (i, j) has its centre at x = i + 0.5,
@@ -490,6 +518,12 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
     for (size_t i = 0; i < nv; ++i)
       if (!finite3(ply.vertices[i])) bad.add(i);
     if (bad) fail(count_of(bad.count, "vertex", "vertices") + " with non-finite positions (first: vertex " + s(bad.first) + ")");
+    First far;
+    for (size_t i = 0; i < nv; ++i)
+      if (far3(ply.vertices[i])) far.add(i);
+    if (far)
+      fail(count_of(far.count, "vertex", "vertices") + " farther than 10000 m from the origin along an axis (first: vertex " +
+           s(far.first) + ")");
   }
   const size_t ncoarse = model.faces.size();
   for (size_t p = 0; p < np; ++p) {
