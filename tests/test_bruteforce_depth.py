@@ -38,13 +38,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hrt_locate import hrt_binary
 from scipy.spatial.transform import Rotation
 
 from hbake import procedural as P
@@ -91,13 +90,7 @@ RESOLUTIONS = (32, 50, 64)
 
 
 def _hrt() -> str:
-    """The hrt binary: $HRT, else .venv/bin/hrt (make runtime), else PATH."""
-    for cand in (os.environ.get("HRT"), REPO / ".venv" / "bin" / "hrt", shutil.which("hrt")):
-        if cand and Path(cand).is_file():
-            return str(cand)
-    if os.environ.get("CI"):
-        pytest.fail("hrt is not built (make runtime), but CI must run this test")
-    pytest.skip("hrt is not built: run `make runtime` or set HRT=/path/to/hrt")
+    return hrt_binary()
 
 
 @pytest.fixture(scope="module")

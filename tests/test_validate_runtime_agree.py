@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hrt_locate import hrt_binary
 
 from hbake import bundle as hb
 from hbake.errors import VALIDATE_EXIT
@@ -47,14 +48,7 @@ QUERY_POSES = ["--pose-a", "0", "0", "0", "0", "0", "0", "1",
 
 
 def _hrt() -> str:
-    """The hrt binary: $HRT, else .venv/bin/hrt (make runtime), else PATH."""
-    for cand in (os.environ.get("HRT"), REPO / ".venv" / "bin" / "hrt", shutil.which("hrt")):
-        if cand and Path(cand).is_file():
-            return str(cand)
-    if os.environ.get("CI"):
-        pytest.fail("hrt is not built (make runtime), but CI must run this test")
-    pytest.skip("hrt is not built: run `make runtime` or set HRT=/path/to/hrt; "
-                "the differential test of hbake validate against hrt check needs it")
+    return hrt_binary("the differential test of hbake validate against hrt check needs it")
 
 
 @pytest.fixture(scope="module")

@@ -63,22 +63,29 @@ std::string cpu_model() {
   return "unknown CPU";
 }
 
+// The previous narrow phase: FCL's signed distance (GST_LIBCCD) of one job.
+// May abort the process (its EPA asserts): call it in a child only.
+fcl::DistanceResultd previous_distance(const hrt::collision::ModelGeometry& ga, const hrt::collision::ModelGeometry& gb,
+                                       const Job& j, double tol) {
+  fcl::DistanceRequestd req(true, true);
+  req.distance_tolerance = tol;
+  fcl::DistanceResultd res;
+  fcl::Transform3d tf = fcl::Transform3d::Identity();
+  tf.linear() = j.b_from_a.linear();
+  tf.translation() = j.b_from_a.translation();
+  fcl::distance(ga.convex[static_cast<size_t>(j.pa)].get(), tf, gb.convex[static_cast<size_t>(j.pb)].get(),
+                fcl::Transform3d::Identity(), req, res);
+  return res;
+}
+
 // The previous narrow phase on jobs[first..): writes one Out per job to fd;
-// returns when done. Per-call times (ns) of the repeats go after the outputs.
+// returns when done.
 void old_child(const hrt::collision::ModelGeometry& ga, const hrt::collision::ModelGeometry& gb,
                const std::vector<Job>& jobs, size_t first, double tol, int fd) {
   for (size_t k = first; k < jobs.size(); ++k) {
-    const Job& j = jobs[k];
-    fcl::DistanceRequestd req(true, true);
-    req.distance_tolerance = tol;
-    fcl::DistanceResultd res;
-    fcl::Transform3d tf = fcl::Transform3d::Identity();
-    tf.linear() = j.b_from_a.linear();
-    tf.translation() = j.b_from_a.translation();
     Out o{};
     try {
-      fcl::distance(ga.convex[static_cast<size_t>(j.pa)].get(), tf, gb.convex[static_cast<size_t>(j.pb)].get(),
-                    fcl::Transform3d::Identity(), req, res);
+      const fcl::DistanceResultd res = previous_distance(ga, gb, jobs[k], tol);
       o.d = res.min_distance;
       const Vec3 dir = o.d >= 0 ? Vec3(res.nearest_points[1] - res.nearest_points[0])
                                 : Vec3(res.nearest_points[0] - res.nearest_points[1]);
@@ -209,15 +216,7 @@ int main(int argc, char** argv) {
       close(fd[0]);
       auto run_old = [&](size_t k) {
         if (old[k].ok != 1) return;
-        const Job& j = jobs[k];
-        fcl::DistanceRequestd req(true, true);
-        req.distance_tolerance = gjk_tol;
-        fcl::DistanceResultd res;
-        fcl::Transform3d tf = fcl::Transform3d::Identity();
-        tf.linear() = j.b_from_a.linear();
-        tf.translation() = j.b_from_a.translation();
-        fcl::distance(ga.convex[static_cast<size_t>(j.pa)].get(), tf, gb.convex[static_cast<size_t>(j.pb)].get(),
-                      fcl::Transform3d::Identity(), req, res);
+        previous_distance(ga, gb, jobs[k], gjk_tol);
       };
       const double t[2] = {time_class(run_old, true), time_class(run_old, false)};
       if (write(fd[1], t, sizeof t) != sizeof t) _exit(1);
