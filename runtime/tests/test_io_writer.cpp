@@ -409,4 +409,40 @@ HrtRun run_hrt(const std::vector<std::string>& args, bool capture_stdout) {
   return r;
 }
 
+// A right prism over a regular k-gon (2k vertices, 4k - 4 faces, outward):
+// convex in float32 with a wide margin (the caps are exactly planar, the
+// sides exactly vertical), so only the limits can refuse it.
+void prism(int k, double r, double z0, double z1, std::vector<std::array<float, 3>>& v, std::vector<hrt::Tri>& f) {
+  const hrt::Vec3 c = cube_center();
+  v.clear();
+  f.clear();
+  for (int side = 0; side < 2; ++side)
+    for (int i = 0; i < k; ++i) {
+      const double a = 2 * M_PI * i / k;
+      v.push_back({static_cast<float>(c.x() + r * std::cos(a)), static_cast<float>(c.y() + r * std::sin(a)),
+                   static_cast<float>(c.z() + (side ? z1 : z0))});
+    }
+  const uint32_t K = static_cast<uint32_t>(k);
+  for (uint32_t i = 1; i + 1 < K; ++i) {
+    f.push_back({0, i + 1, i});          // bottom, seen from below
+    f.push_back({K, K + i, K + i + 1});  // top
+  }
+  for (uint32_t i = 0; i < K; ++i) {
+    const uint32_t j = (i + 1) % K;
+    f.push_back({i, j, K + j});
+    f.push_back({i, K + j, K + i});
+  }
+}
+
+// Writes a bundle whose pieces.ply holds `pieces` prisms of 1024 vertices
+// and 2044 faces each (the worst case of the convexity check per byte).
+void many_prism_bundle(const std::string& dir, BundleContent b, int pieces, int sides) {
+  b.piece_vertices.assign(static_cast<size_t>(pieces), {});
+  b.piece_faces.assign(static_cast<size_t>(pieces), {});
+  b.piece_map.assign(static_cast<size_t>(pieces), {});
+  for (int p = 0; p < pieces; ++p) prism(sides, 0.005, -0.005, 0.005, b.piece_vertices[p], b.piece_faces[p]);
+  b.manifest["pieces"]["count"] = pieces;
+  write_bundle(dir, b);
+}
+
 }  // namespace hrt_test

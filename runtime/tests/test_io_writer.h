@@ -105,4 +105,12 @@ std::string fresh_dir(const std::string& name);  // empty temp directory named N
 void copy_dir(const std::string& from, const std::string& to);
 void remove_tree(const std::string& path);
 
+// A right prism over a regular k-gon of radius r about the cube's centre,
+// z in [z0, z1] (2k vertices, 4k - 4 outward faces, convex in float32).
+void prism(int k, double r, double z0, double z1, std::vector<std::array<float, 3>>& v, std::vector<hrt::Tri>& f);
+// Writes bundle `b` with its pieces.ply replaced by `pieces` prisms over a
+// `sides`-gon (512: 1024 vertices and 2044 faces each, the worst case of the
+// convexity check per byte; 200 of them make a 10 MB pieces.ply).
+void many_prism_bundle(const std::string& dir, BundleContent b, int pieces, int sides = 512);
+
 }  // namespace hrt_test

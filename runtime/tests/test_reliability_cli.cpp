@@ -22,7 +22,8 @@ namespace {
 class HrtCli : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (::access(hrt_binary().c_str(), X_OK) != 0) GTEST_SKIP() << "hrt binary not built next to hrt_tests";
+    // hrt is built with hrt_tests (one CMake project): a missing binary is a failure, not a skip.
+    ASSERT_EQ(::access(hrt_binary().c_str(), X_OK), 0) << "hrt binary not built next to hrt_tests: " << hrt_binary();
     pebble_ = golden_dir() + "/pebble.hbundle";
   }
   // Exit 2 and exactly one line on stderr containing `fragment`.

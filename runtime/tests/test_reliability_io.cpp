@@ -31,7 +31,8 @@ namespace {
 class Reliability : public ::testing::Test {
  protected:
   void SetUp() override {
-    if (::access(hrt_binary().c_str(), X_OK) != 0) GTEST_SKIP() << "hrt binary not built next to hrt_tests";
+    // hrt is built with hrt_tests (one CMake project): a missing binary is a failure, not a skip.
+    ASSERT_EQ(::access(hrt_binary().c_str(), X_OK), 0) << "hrt binary not built next to hrt_tests: " << hrt_binary();
     dir_ = fresh_dir(std::string("rel_") + ::testing::UnitTest::GetInstance()->current_test_info()->name());
     content_ = make_cube();
   }
@@ -337,31 +338,6 @@ TEST_F(Reliability, AtlasChecksCostTheTrianglesNotTheirBoundingBoxes) {
 
 // ---- pieces.ply -----------------------------------------------------------------
 
-// A right prism over a regular k-gon (2k vertices, 4k - 4 faces, outward):
-// convex in float32 with a wide margin (the caps are exactly planar, the
-// sides exactly vertical), so only the limits can refuse it.
-void prism(int k, double r, double z0, double z1, std::vector<std::array<float, 3>>& v, std::vector<hrt::Tri>& f) {
-  const hrt::Vec3 c = cube_center();
-  v.clear();
-  f.clear();
-  for (int side = 0; side < 2; ++side)
-    for (int i = 0; i < k; ++i) {
-      const double a = 2 * M_PI * i / k;
-      v.push_back({static_cast<float>(c.x() + r * std::cos(a)), static_cast<float>(c.y() + r * std::sin(a)),
-                   static_cast<float>(c.z() + (side ? z1 : z0))});
-    }
-  const uint32_t K = static_cast<uint32_t>(k);
-  for (uint32_t i = 1; i + 1 < K; ++i) {
-    f.push_back({0, i + 1, i});          // bottom, seen from below
-    f.push_back({K, K + i, K + i + 1});  // top
-  }
-  for (uint32_t i = 0; i < K; ++i) {
-    const uint32_t j = (i + 1) % K;
-    f.push_back({i, j, K + j});
-    f.push_back({i, K + j, K + i});
-  }
-}
-
 TEST_F(Reliability, PieceVertexLimit) {
   // 512-gon prism: 1024 vertices, accepted.
   prism(512, 0.005, -0.005, 0.005, content_.piece_vertices[0], content_.piece_faces[0]);
@@ -397,28 +373,6 @@ TEST_F(Reliability, PieceFaceLimit) {
     EXPECT_EQ(e.error_class(), BundleErrorClass::pieces);
     EXPECT_NE(std::string(e.what()).find("piece 0 has 3000 faces, more than the limit 2044"), std::string::npos) << e.what();
   }
-}
-
-// Writes a bundle whose pieces.ply holds `pieces` prisms of 1024 vertices
-// and 2044 faces each (the worst case of the convexity check per byte).
-void many_prism_bundle(const std::string& dir, BundleContent b, int pieces, int sides = 512) {
-  b.piece_vertices.assign(static_cast<size_t>(pieces), {});
-  b.piece_faces.assign(static_cast<size_t>(pieces), {});
-  b.piece_map.assign(static_cast<size_t>(pieces), {});
-  for (int p = 0; p < pieces; ++p) prism(sides, 0.005, -0.005, 0.005, b.piece_vertices[p], b.piece_faces[p]);
-  b.manifest["pieces"]["count"] = pieces;
-  write_bundle(dir, b);
-}
-
-// HRT_RELIABILITY_BUNDLE=DIR HRT_RELIABILITY_PIECES=P [HRT_RELIABILITY_SIDES=K]
-// writes the measurement bundle of docs/input-contract.md: P prisms over a
-// K-gon (default 512: 1024 vertices, 2044 faces; P = 200 is 10 MB).
-TEST(ReliabilityExport, ManyPiecesBundle) {
-  const char* dir = std::getenv("HRT_RELIABILITY_BUNDLE");
-  if (!dir || !*dir) GTEST_SKIP() << "set HRT_RELIABILITY_BUNDLE=DIR to write the measurement bundle";
-  const char* n = std::getenv("HRT_RELIABILITY_PIECES");
-  const char* k = std::getenv("HRT_RELIABILITY_SIDES");
-  many_prism_bundle(dir, make_cube(), n && *n ? std::atoi(n) : 200, k && *k ? std::atoi(k) : 512);
 }
 
 }  // namespace
