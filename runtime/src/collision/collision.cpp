@@ -459,47 +459,44 @@ bool sat_depth(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_
   double best = overlap(axis);
   if (!std::isfinite(best)) return false;
 
+  // The faces of one piece near the other piece's box (grown by the current
+  // bound), by chunk boxes then face spheres; face_overlap(plane) gives the
+  // overlap and axis (B frame) of that face's normal.
+  auto scan_faces = [&](const ModelGeometry::PieceSat& s, const std::vector<Eigen::Vector4d>& planes,
+                        const Vec3& other_c, const Vec3& other_h, auto&& face_overlap) {
+    for (const ModelGeometry::SatChunk& ch : s.face_chunks) {
+      const Vec3 g = Vec3::Constant(std::max(best, 0.0) + eps);
+      if (!boxes_meet(ch.lo, ch.hi, other_c - other_h - g, other_c + other_h + g)) continue;
+      for (int k = ch.first; k < ch.first + ch.count; ++k) {
+        const size_t f = static_cast<size_t>(s.face_order[static_cast<size_t>(k)]);
+        const Vec3 gf = Vec3::Constant(std::max(best, 0.0) + eps);  // best may have dropped
+        if (!sphere_meets_box(s.face_sphere[f], other_c - other_h - gf, other_c + other_h + gf)) continue;
+        Vec3 u;
+        const double o = face_overlap(planes[f], u);
+        if (o < best) {
+          best = o;
+          axis = u;
+        }
+      }
+    }
+  };
   // A's faces (outward normal m_A; u = R m_A): overlap = A's plane offset
-  // in B's frame + support_B(-u).
-  for (const ModelGeometry::SatChunk& ch : sa.face_chunks) {
-    const Vec3 g = Vec3::Constant(std::max(best, 0.0) + eps);
-    const Vec3 lo = b_in_a_c - b_in_a_h - g, hi = b_in_a_c + b_in_a_h + g;
-    if (!boxes_meet(ch.lo, ch.hi, lo, hi)) continue;
-    for (int k = ch.first; k < ch.first + ch.count; ++k) {
-      const size_t f = static_cast<size_t>(sa.face_order[static_cast<size_t>(k)]);
-      const Vec3 gg = Vec3::Constant(std::max(best, 0.0) + eps);
-      if (!sphere_meets_box(sa.face_sphere[f], b_in_a_c - b_in_a_h - gg, b_in_a_c + b_in_a_h + gg)) continue;
-      const Eigen::Vector4d& pl = ga.planes[ia][f];
-      const Vec3 u = R * pl.head<3>();
-      double hb = 0;
-      cur_b = climb(vb, sb, -u, cur_b, hb);
-      const double o = pl[3] + u.dot(t) + hb;
-      if (o < best) {
-        best = o;
-        axis = u;
-      }
-    }
-  }
-  // B's faces (outward m; u = -m): overlap = support_A(-R^T m) - m . t + B's offset.
-  for (const ModelGeometry::SatChunk& ch : sb.face_chunks) {
-    const Vec3 g = Vec3::Constant(std::max(best, 0.0) + eps);
-    const Vec3 lo = a_in_b_c - a_in_b_h - g, hi = a_in_b_c + a_in_b_h + g;
-    if (!boxes_meet(ch.lo, ch.hi, lo, hi)) continue;
-    for (int k = ch.first; k < ch.first + ch.count; ++k) {
-      const size_t f = static_cast<size_t>(sb.face_order[static_cast<size_t>(k)]);
-      const Vec3 gg = Vec3::Constant(std::max(best, 0.0) + eps);
-      if (!sphere_meets_box(sb.face_sphere[f], a_in_b_c - a_in_b_h - gg, a_in_b_c + a_in_b_h + gg)) continue;
-      const Eigen::Vector4d& pl = gb.planes[ib][f];
-      const Vec3 m = pl.head<3>();
-      double ha = 0;
-      cur_a = climb(va, sa, -(Rt * m), cur_a, ha);
-      const double o = ha - m.dot(t) + pl[3];
-      if (o < best) {
-        best = o;
-        axis = -m;
-      }
-    }
-  }
+  // in B's frame + support_B(-u). In A's frame, against B's box there.
+  scan_faces(sa, ga.planes[ia], b_in_a_c, b_in_a_h, [&](const Eigen::Vector4d& pl, Vec3& u) {
+    u = R * pl.head<3>();
+    double hb = 0;
+    cur_b = climb(vb, sb, -u, cur_b, hb);
+    return pl[3] + u.dot(t) + hb;
+  });
+  // B's faces (outward m; u = -m): overlap = support_A(-R^T m) - m . t + B's
+  // offset. In B's frame, against A's box there.
+  scan_faces(sb, gb.planes[ib], a_in_b_c, a_in_b_h, [&](const Eigen::Vector4d& pl, Vec3& u) {
+    const Vec3 m = pl.head<3>();
+    u = -m;
+    double ha = 0;
+    cur_a = climb(va, sa, -(Rt * m), cur_a, ha);
+    return ha - m.dot(t) + pl[3];
+  });
   // Edge pairs that form a face of A - B: arcs (n1a, n2a) and (-n1b, -n2b)
   // intersect on the unit sphere. When a face axis already separates the
   // pieces (best < 0) they only touch, and that axis is kept.
