@@ -235,21 +235,32 @@ TEST(NarrowPhase, LibccdAbortPairBuildsAndRuns) {
 //     within tol of the origin), and the normal within 1e-3 rad of the SAT
 //     axis where that axis is unique (second-best axis worse by > 10 tol);
 //   - separated: p_a within tol of A, p_b within tol of B, and the two slab
-//     planes hold A and B within tol (so the true distance lies in
-//     [d - 2 tol, d]).
-TEST(NarrowPhase, AgreesWithSeparatingAxesOnTheFixture) {
-  const std::vector<Poly> polys = load_fixture();
+//     planes hold A and B within 10 tol (so the true distance lies in
+//     [d - 10 tol, d]; see the comment at that check).
+// Counts of what check_pair exercised.
+struct Checked {
+  int overlapping = 0, separated = 0, normals_checked = 0, fcl_compared = 0;
+};
+
+// piece_distance of piece A (placed at `trials` random poses, A's centre
+// within 0.8 x the two radii of B's) against B, checked against the
+// references and bounds above.
+static void check_pair(const Poly& A, const Poly& B, int trials, unsigned seed, const std::string& label, Checked& c) {
+  const std::vector<Poly> polys = {A, B};
   const hrt::Model ma = model_of({polys[0]});
   const hrt::Model mb = model_of({polys[1]});
   const auto ga = hrt::collision::build_geometry(ma, false);
   const auto gb = hrt::collision::build_geometry(mb, true);
   const double scale = std::max(ga->scale, gb->scale);
   const double tol = 1e-6 * scale;
-  std::mt19937 rng(7);
+  std::mt19937 rng(seed);
   std::uniform_real_distribution<double> uni(-1.0, 1.0);
   const Vec3 ca = ga->piece_bounds[0].center, cb = gb->piece_bounds[0].center;
-  int overlapping = 0, separated = 0, normals_checked = 0, fcl_compared = 0;
-  for (int trial = 0; trial < 400; ++trial) {
+  int& overlapping = c.overlapping;
+  int& separated = c.separated;
+  int& normals_checked = c.normals_checked;
+  int& fcl_compared = c.fcl_compared;
+  for (int trial = 0; trial < trials; ++trial) {
     // A rotated about its centre, then placed with its centre near B's.
     const Eigen::Quaterniond q = random_rotation(rng);
     const double reach = ga->piece_bounds[0].radius + gb->piece_bounds[0].radius;
@@ -260,20 +271,22 @@ TEST(NarrowPhase, AgreesWithSeparatingAxesOnTheFixture) {
     double d = 0;
     Vec3 p_a, p_b, n;
     bool fallback = false;
-    ASSERT_TRUE(hrt::collision::piece_distance(*ga, 0, b_from_a, *gb, 0, tol, d, p_a, p_b, n, fallback))
-        << "trial " << trial;
+    if (!hrt::collision::piece_distance(*ga, 0, b_from_a, *gb, 0, tol, d, p_a, p_b, n, fallback)) {
+      ADD_FAILURE() << label << " trial " << trial << ": piece_distance failed";
+      continue;
+    }
     Vec3 axis;
     const double sat = sat_overlap(polys[0], b_from_a, polys[1], axis);
     if (sat > 0) {
       ++overlapping;
-      EXPECT_LE(d, 0.0) << "trial " << trial;
-      EXPECT_NEAR(-d, sat, 2 * tol) << "trial " << trial;
+      EXPECT_LE(d, 0.0) << label << " trial " << trial;
+      EXPECT_NEAR(-d, sat, 2 * tol) << label << " trial " << trial;
       // The previous narrow phase, where it survives: FCL's EPA stops within
       // its tolerance (tol) of the true depth.
       double d_fcl = 0;
       if (fcl_signed_distance(*ga->convex[0], b_from_a, *gb->convex[0], tol, d_fcl)) {
         ++fcl_compared;
-        EXPECT_NEAR(d, d_fcl, 2 * tol) << "trial " << trial;
+        EXPECT_NEAR(d, d_fcl, 2 * tol) << label << " trial " << trial;
       }
       // Where the SAT axis is unique (every axis more than 1e-3 rad from it
       // overlaps by more than 10 tol more), n must be that axis.
@@ -285,28 +298,60 @@ TEST(NarrowPhase, AgreesWithSeparatingAxesOnTheFixture) {
               second = std::min(second, overlap_along(polys[0], b_from_a, polys[1], ax));
         if (second > sat + 10 * tol) {
           ++normals_checked;
-          EXPECT_LT(std::acos(std::clamp(n.dot(axis), -1.0, 1.0)), 1e-3) << "trial " << trial;
+          EXPECT_LT(std::acos(std::clamp(n.dot(axis), -1.0, 1.0)), 1e-3) << label << " trial " << trial;
         }
       }
     } else {
       ++separated;
-      EXPECT_GE(d, 0.0) << "trial " << trial;
-      EXPECT_LE(max_outside(polys[0], b_from_a, p_a), tol) << "trial " << trial;
-      EXPECT_LE(max_outside(polys[1], Eigen::Isometry3d::Identity(), p_b), tol) << "trial " << trial;
-      EXPECT_NEAR((p_b - p_a).norm(), d, 1e-12 * scale) << "trial " << trial;
+      EXPECT_GE(d, 0.0) << label << " trial " << trial;
+      EXPECT_LE(max_outside(polys[0], b_from_a, p_a), tol) << label << " trial " << trial;
+      EXPECT_LE(max_outside(polys[1], Eigen::Isometry3d::Identity(), p_b), tol) << label << " trial " << trial;
+      EXPECT_NEAR((p_b - p_a).norm(), d, 1e-12 * scale) << label << " trial " << trial;
       if (d > 10 * tol) {
         const Vec3 u = (p_b - p_a) / d;
-        EXPECT_LE(overlap_along(polys[0], b_from_a, polys[1], u) + d, 2 * tol) << "trial " << trial;
+        // FCL's GJK stops when the distance improves by less than tol and
+        // does not promise the distance within tol (its own documentation);
+        // the bound is what the runtime needs instead: the distance only
+        // decides membership in the contact tolerance, whose automatic
+        // margin alone is 1e-3 x the bbox diagonal, and 10 tol = 1e-5 x
+        // scale is 1 % of it.
+        EXPECT_LE(overlap_along(polys[0], b_from_a, polys[1], u) + d, 10 * tol) << label << " trial " << trial;
         // SAT gives a lower bound on the distance: never above d.
-        EXPECT_LE(-sat, d + tol) << "trial " << trial;
+        EXPECT_LE(-sat, d + tol) << label << " trial " << trial;
       }
     }
   }
+}
+
+TEST(NarrowPhase, AgreesWithSeparatingAxesOnTheFixture) {
+  const std::vector<Poly> polys = load_fixture();
+  Checked c;
+  check_pair(polys[0], polys[1], 400, 7, "fixture", c);
   // Both regimes must actually be exercised.
-  EXPECT_GT(overlapping, 50);
-  EXPECT_GT(separated, 50);
-  EXPECT_GT(normals_checked, 20);
-  EXPECT_GT(fcl_compared, 50);
+  EXPECT_GT(c.overlapping, 50);
+  EXPECT_GT(c.separated, 50);
+  EXPECT_GT(c.normals_checked, 20);
+  EXPECT_GT(c.fcl_compared, 50);
+}
+
+// The same on the pieces of bundles that hbake baked from curved shapes
+// (tests/golden: an ellipsoid with bumps, a pebble with a bump and a dent),
+// read by the loader: every piece against the next one, random poses.
+TEST(NarrowPhase, AgreesWithSeparatingAxesOnBakedPieces) {
+  Checked c;
+  for (const char* name : {"bumpy_blob.hbundle", "pebble.hbundle"}) {
+    const hrt::Model m = hrt::load_bundle(std::string(HRT_GOLDEN_DIR) + "/" + name);
+    std::vector<Poly> polys;
+    for (const hrt::ConvexPiece& piece : m.pieces) polys.push_back(Poly{piece.vertices, piece.faces});
+    ASSERT_GE(polys.size(), 1u) << name;
+    for (size_t k = 0; k < polys.size(); ++k)  // a one-piece bundle: the piece against itself
+      check_pair(polys[k], polys[(k + 1) % polys.size()], 60, static_cast<unsigned>(11 + k),
+                 std::string(name) + " pieces " + std::to_string(k) + "/" + std::to_string((k + 1) % polys.size()), c);
+  }
+  EXPECT_GT(c.overlapping, 50);
+  EXPECT_GT(c.separated, 50);
+  EXPECT_GT(c.normals_checked, 20);
+  EXPECT_GT(c.fcl_compared, 50);
 }
 
 // Adjacency from the triangle map: the fixture's two pieces share no coarse
