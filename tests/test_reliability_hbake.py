@@ -538,36 +538,39 @@ def test_stale_temporaries_of_dead_bakes_are_removed(tmp_path):
 # --------------------------------------------------------------------------- C: piece vertex cap
 
 def test_decompose_caps_hull_vertices(monkeypatch):
-    """CoACD's voxel remesh of a non-manifold coarse mesh can return hulls of thousands
-    of vertices; the bake must never store a piece over 1024 vertices: it reruns CoACD
-    with hull decimation, and fails with exit 7 if that does not help."""
+    """CoACD can return hulls of thousands of vertices (a convex coarse mesh of many
+    vertices is one piece holding all of them; so can the voxel remesh of a non-manifold
+    one); the bake must never store a piece over 1024 vertices: it reruns CoACD with hull
+    decimation, and fails with exit 7 if that does not help."""
     import coacd
     import trimesh
     from hbake.decompose import decompose
     from hbake.errors import BakeFailedError
 
-    rng = np.random.default_rng(0)
-    d = rng.normal(size=(3000, 3))
-    big = 0.01 * d / np.linalg.norm(d, axis=1, keepdims=True)
-    small = trimesh.creation.icosphere(subdivisions=1, radius=0.01)
+    # Real CoACD: a sphere of 2562 vertices is one convex piece of 2562 vertices.
     calls = []
+    real = coacd.run_coacd
 
-    def fake(mesh, **kw):
+    def spy(mesh, **kw):
         calls.append(kw["decimate"])
-        if kw["decimate"]:
-            return [(np.asarray(small.vertices), np.asarray(small.faces))]
-        return [(big, np.zeros((0, 3), int))]
+        return real(mesh, **kw)
 
-    monkeypatch.setattr(coacd, "run_coacd", fake)
-    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.01)
+    monkeypatch.setattr(coacd, "run_coacd", spy)
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=0.01)
     pieces = decompose(np.asarray(ball.vertices), np.asarray(ball.faces))
     assert calls == [False, True]
     assert max(len(v) for v in pieces.vertices) <= hb.MAX_PIECE_VERTICES
     assert any("hull decimation" in w for w in pieces.warnings)
 
+    # The defensive branch, which CoACD's decimation (max_ch_vertex=1024) never reaches:
+    # a CoACD that keeps returning a 3000-vertex hull must fail the bake, not write it.
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(3000, 3))
+    big = 0.01 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    small_ball = trimesh.creation.icosphere(subdivisions=2, radius=0.01)
     monkeypatch.setattr(coacd, "run_coacd", lambda mesh, **kw: [(big, np.zeros((0, 3), int))])
     with pytest.raises(BakeFailedError, match="more than the limit 1024") as e:
-        decompose(np.asarray(ball.vertices), np.asarray(ball.faces))
+        decompose(np.asarray(small_ball.vertices), np.asarray(small_ball.faces))
     assert e.value.exit_code == EXIT_BAKE_FAILED
 
 
