@@ -66,6 +66,15 @@ def _redirect(stream, fd: int, sink: int):
     return saved, new
 
 
+def _flush_python_streams() -> None:
+    """Flush sys.stdout and sys.stderr (closed or replaced streams are skipped)."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (AttributeError, ValueError):
+            pass
+
+
 @contextmanager
 def silence_native_output():
     """Descriptors 1 and 2 go to /dev/null inside; sys.stdout and sys.stderr keep writing
@@ -88,11 +97,7 @@ def silence_native_output():
     try:
         yield
     finally:
-        for s in (sys.stdout, sys.stderr):
-            try:
-                s.flush()
-            except (AttributeError, ValueError):
-                pass
+        _flush_python_streams()
         flush_c_stdio()
         sys.stdout, sys.stderr = old_out, old_err
         os.dup2(saved_out, 1)
@@ -161,11 +166,7 @@ def run_guarded(body: Callable[[], int], output: Path, report: Path | None = Non
             import traceback
             traceback.print_exc()
         finally:
-            for s in (sys.stdout, sys.stderr):
-                try:
-                    s.flush()
-                except (AttributeError, ValueError):
-                    pass
+            _flush_python_streams()
             os._exit(code)
     try:                                                 # the parent
         while True:
