@@ -316,14 +316,20 @@ void run_bench(BenchOptions o) {
                      {"uncovered_configurations", w.depth.uncovered_configurations},
                      {"patches_dropped", w.patches_dropped},
                      {"fcl_failures", w.fcl_failures},
-                     {"fallback_normals", w.fallback_normals}};
+                     {"fallback_normals", w.fallback_normals},
+                     {"refused_patches", w.refused_patches},
+                     {"clamped_patches", w.clamped_patches}};
     jpath.push_back(j);
     if (!o.json) {
       char pairs[32], patches[32];
       std::snprintf(pairs, sizeof pairs, "%.0f", s.pairs_med);
       std::snprintf(patches, sizeof patches, "%d-%d", s.patches_min, s.patches_max);
-      std::printf("%5d %7s %9s %11.1f %9.1f %9.1f %10.1f %11.2f %8.1f %8.2f\n", n, pairs, patches, s.collision,
-                  s.clustering, s.force, s.total, s.per_pair, s.per_patch, 1e3 / s.total);
+      std::printf("%5d %7s %9s %11.1f %9.1f %9.1f %10.1f %11.2f %8.1f %8.2f%s\n", n, pairs, patches, s.collision,
+                  s.clustering, s.force, s.total, s.per_pair, s.per_patch, 1e3 / s.total,
+                  w.refused_patches || w.clamped_patches
+                      ? ("   (" + std::to_string(w.refused_patches) + " refused, " + std::to_string(w.clamped_patches) +
+                         " clamped patch-frames)").c_str()
+                      : "");
     }
   }
   js["path_results"] = jpath;

@@ -77,7 +77,11 @@ Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOption
                         {"delta", c.delta},
                         {"grad", {c.grad[0] + 0.0, c.grad[1] + 0.0, c.grad[2] + 0.0, c.grad[3] + 0.0, c.grad[4] + 0.0, c.grad[5] + 0.0}},
                         {"force", j3(c.force)},
-                        {"torque", j3(c.torque)}});
+                        {"torque", j3(c.torque)},
+                        {"delta_bound", c.delta_bound},
+                        {"delta_force", c.delta_force},
+                        {"clamped", c.clamped},
+                        {"refused", c.refused}});
   }
   json wrench_b = json::array();
   for (int b = 1; b < scene.size(); ++b)
@@ -113,7 +117,9 @@ Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOption
             {"patches_dropped", w.patches_dropped},
             {"empty_windows", w.empty_windows},
             {"undersampled_patches", w.depth.undersampled_patches},
-            {"uncovered_configurations", w.depth.uncovered_configurations}}}};
+            {"uncovered_configurations", w.depth.uncovered_configurations},
+            {"refused_patches", w.refused_patches},
+            {"clamped_patches", w.clamped_patches}}}};
 }
 
 void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptions& o, const hrt::StageTimings& t,
@@ -128,23 +134,23 @@ void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptio
               so.force.shortcut ? "shortcut (Sec. 5.2)" : "full re-rasterization");
   std::printf("contacts    %d piece pairs -> %d patches\n\n", st.num_pairs, st.num_patches);
   if (st.num_patches > 0) {
-    std::printf("%3s %3s %5s %9s %10s %25s %25s %25s\n", "#", "B", "pairs", "tris A/B", "delta mm", "n (A into B)",
+    std::printf("%3s %3s %5s %9s %12s %25s %25s %25s\n", "#", "B", "pairs", "tris A/B", "delta mm", "n (A into B)",
                 "force on A (N)", "torque on A (N m)");
     for (int k = 0; k < st.num_patches; ++k) {
       const hrt::ContactPatch& c = st.patches[static_cast<size_t>(k)];
       char tris[32], delta[32];
       std::snprintf(tris, sizeof tris, "%zu/%zu", c.tris_a.size(), c.tris_b.size());
       if (c.covered)
-        std::snprintf(delta, sizeof delta, "%.5f", c.delta * 1e3);
+        std::snprintf(delta, sizeof delta, "%.5f%s", c.delta * 1e3, c.refused ? " R" : c.clamped ? " C" : "");
       else
-        std::snprintf(delta, sizeof delta, "uncovered");
+        std::snprintf(delta, sizeof delta, "uncovered%s", c.refused ? " R" : "");
       // "+ 0.0" prints -0 as 0.
-      std::printf("%3d %3d %5d %9s %10s  (%6.3f,%6.3f,%6.3f)  (%7.3g,%7.3g,%7.3g)  (%7.3g,%7.3g,%7.3g)\n", k,
+      std::printf("%3d %3d %5d %9s %12s  (%6.3f,%6.3f,%6.3f)  (%7.3g,%7.3g,%7.3g)  (%7.3g,%7.3g,%7.3g)\n", k,
                   c.object_b, c.piece_pairs, tris, delta, c.n.x() + 0.0, c.n.y() + 0.0, c.n.z() + 0.0,
                   c.force.x() + 0.0, c.force.y() + 0.0, c.force.z() + 0.0, c.torque.x() + 0.0, c.torque.y() + 0.0,
                   c.torque.z() + 0.0);
     }
-    std::printf("\n");
+    std::printf("(R: refused, no force; C: clamped, the force of delta_bound; see docs/hrt-query-json.md)\n\n");
   }
   std::printf("net force on A    (%.6g, %.6g, %.6g) N, |F| = %.6g N\n", st.force.x(), st.force.y(), st.force.z(),
               st.force.norm());
@@ -159,9 +165,15 @@ void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptio
               t.clustering_us, t.force_us, t.total_us,
               o.repeat > 1 ? (" (median of " + std::to_string(o.repeat) + " frames)").c_str() : " (one frame)");
   const uint64_t any = w.fallback_normals + w.fcl_failures + w.pairs_grown + w.patches_dropped + w.empty_windows +
-                       w.depth.undersampled_patches + w.depth.uncovered_configurations;
+                       w.depth.undersampled_patches + w.depth.uncovered_configurations + w.refused_patches +
+                       w.clamped_patches;
   if (any) {
     std::printf("warnings         ");
+    if (w.refused_patches)
+      std::printf(" %llu patch(es) refused (n disagrees with the pieces: no force);",
+                  static_cast<unsigned long long>(w.refused_patches));
+    if (w.clamped_patches)
+      std::printf(" %llu patch(es) clamped to the pieces' depth bound;", static_cast<unsigned long long>(w.clamped_patches));
     if (w.depth.undersampled_patches)
       std::printf(" %llu patch(es) with a grid texel coarser than half the shortest relief wavelength (Sec. 7.2);",
                   static_cast<unsigned long long>(w.depth.undersampled_patches));

@@ -66,6 +66,25 @@ struct ContactPatch {
   Vec3 force = Vec3::Zero();     // on A, world, N
   Vec3 torque = Vec3::Zero();    // on A about A's centre of mass, world, N m
   bool covered = false;          // some texel was covered by both A and B
+
+  // Safety (frame(), after the force model; src/contact/frame.cpp states the
+  // rules): whatever the atlas heights say, a patch's force is that of a
+  // depth the coarse geometry allows, along a normal its pieces agree with.
+  //   delta_bound: upper bound on delta that the convex pieces guarantee
+  //                (max over the patch's piece pairs of the pair's overlap
+  //                carried over to n; m).
+  //   clamped:     delta > delta_bound: the force is that of delta_bound
+  //                (same gradient).
+  //   refused:     n disagrees with the pieces' geometry (some pair's A piece
+  //                lies mostly beyond its B piece along n), or the force
+  //                model returned a non-finite value: no force at all.
+  //   delta_force: the depth the force was computed from: min(delta,
+  //                delta_bound), 0 when refused or uncovered.
+  // delta, grad above stay the force model's own values (Eq. 7, 9).
+  double delta_bound = 0.0;
+  double delta_force = 0.0;
+  bool clamped = false;
+  bool refused = false;
 };
 
 }  // namespace hrt

@@ -167,6 +167,8 @@ struct Warnings {
   uint64_t pairs_grown = 0;         // the pair buffer had to grow (an allocation)
   uint64_t patches_dropped = 0;     // patches beyond ClusterOptions::max_patches
   uint64_t empty_windows = 0;       // A's and B's triangles did not overlap in (u, v)
+  uint64_t refused_patches = 0;     // n disagreed with the pieces (or a non-finite result): no force
+  uint64_t clamped_patches = 0;     // delta above the pieces' bound: the force of the bound
   DepthWarnings depth;              // undersampled patches, uncovered FD configurations
 };
 
@@ -202,6 +204,7 @@ struct State {
   uint64_t next_track_id = 1;
   std::vector<int> uf_parent;      // per pair (capacity of `pairs`)
   std::vector<double> pair_weight;  // per pair
+  std::vector<double> pair_overlap;  // per pair: its pieces' overlap along its own n (safety checks)
   std::vector<int> pair_cluster;    // per pair: cluster id
   std::vector<double> cluster_weight;
   std::vector<int> cluster_patch;   // cluster -> patch index, -1 when dropped
@@ -211,6 +214,8 @@ struct State {
   uint32_t face_stamp = 0;
   std::vector<uint32_t> piece_mark_a, piece_mark_b;
   std::vector<int> piece_list_a, piece_list_b;     // unique pieces of one patch
+  std::vector<uint32_t> safety_mark_a, safety_mark_b;  // per piece: stamp of the patch whose triangles it lists
+  uint32_t safety_stamp = 0;
   std::vector<uint32_t> vertex_stamp_a, vertex_stamp_b;  // per coarse vertex: stamp of its cached projection
   std::vector<double> vertex_proj_a, vertex_proj_b;      // 3 per coarse vertex: (u, v) and height of one patch
   std::vector<double> tri_box_a, tri_box_b;              // 4 per triangle of one patch: its (u, v) box
@@ -226,5 +231,13 @@ void frame(const Scene& scene, State& state);
 // The first two stages alone (frame() calls them; exposed for tests and tools).
 void detect_pairs(const Scene& scene, State& state);
 void cluster_pairs(const Scene& scene, State& state);
+// The safety stage of frame() for patch k, after compute_patch_wrench filled
+// it (src/contact/frame.cpp states the rules): sets its delta_bound, refused,
+// clamped and delta_force, zeroes or clamps its force and torque, counts
+// Warnings::refused_patches / clamped_patches. Exposed for tests and tools.
+void apply_patch_safety(const Scene& scene, State& state, int k);
+// Fills state.pair_overlap for this frame's pairs (frame() calls it before
+// the patches; a caller of apply_patch_safety alone calls it first).
+void compute_pair_overlaps(const Scene& scene, State& state);
 
 }  // namespace hrt

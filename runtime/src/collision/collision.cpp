@@ -178,6 +178,16 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
     }
     build_piece_sat(piece, g->edges[p], g->sat[p]);
   }
+  g->face_piece_offset.assign(model.faces.size() + 1, 0);
+  for (size_t p = 0; p < np; ++p)
+    for (uint32_t f : model.pieces[p].coarse_faces) ++g->face_piece_offset[f + 1];
+  for (size_t f = 0; f < model.faces.size(); ++f) g->face_piece_offset[f + 1] += g->face_piece_offset[f];
+  g->face_pieces.assign(static_cast<size_t>(g->face_piece_offset.back()), 0);
+  {
+    std::vector<int> fill(g->face_piece_offset.begin(), g->face_piece_offset.end() - 1);
+    for (size_t p = 0; p < np; ++p)
+      for (uint32_t f : model.pieces[p].coarse_faces) g->face_pieces[static_cast<size_t>(fill[f]++)] = static_cast<int>(p);
+  }
   g->face_spheres.reserve(model.faces.size());
   for (const Tri& f : model.faces) {
     const Vec3 c = (model.vertices[f[0]] + model.vertices[f[1]] + model.vertices[f[2]]) / 3.0;
@@ -395,6 +405,21 @@ int climb(const std::vector<Vec3>& v, const ModelGeometry::PieceSat& s, const Ve
     cur = next;
   }
 }
+
+}  // namespace
+
+double piece_support(const ModelGeometry& g, int piece, const Vec3& dir, int* warm) {
+  const auto ip = static_cast<size_t>(piece);
+  const std::vector<Vec3>& v = g.model->pieces[ip].vertices;
+  int start = warm ? *warm : 0;
+  if (start < 0 || start >= static_cast<int>(v.size())) start = 0;
+  double value = 0;
+  const int best = climb(v, g.sat[ip], dir, start, value);
+  if (warm) *warm = best;
+  return value;
+}
+
+namespace {
 
 bool boxes_meet(const Vec3& alo, const Vec3& ahi, const Vec3& blo, const Vec3& bhi) {
   return !((alo.array() > bhi.array()).any() || (ahi.array() < blo.array()).any());
@@ -725,6 +750,7 @@ Scene::~Scene() = default;
 
 void State::resize_pair_scratch(size_t n) {
   pair_weight.resize(n);
+  pair_overlap.resize(n);
   uf_parent.resize(n);
   pair_order.resize(n);
   pair_cluster.resize(n);
@@ -777,6 +803,8 @@ State::State(const Scene& scene) {
   tri_box_a.assign(4 * A.faces.size(), 0.0);
   tri_box_b.assign(4 * b_faces, 0.0);
   piece_list_a.assign(A.pieces.size(), 0);
+  safety_mark_a.assign(A.pieces.size(), 0);
+  safety_mark_b.assign(maxbp, 0);
   piece_list_b.assign(maxbp, 0);
   track_taken.assign(static_cast<size_t>(maxp), 0);
   depth.reserve(scene.options().force.resolution);

@@ -47,6 +47,11 @@ struct ModelGeometry {
   std::vector<int> adj_list;    // sorted per piece
   double adjacency_tolerance = 0.0;
   bool adjacent(int p, int q) const;
+  // The pieces that list each coarse face (CSR, the inverse of the pieces'
+  // coarse_faces): every part of a face lies in (within map_tolerance of)
+  // one of them. Used by the safety bound (src/contact/frame.cpp).
+  std::vector<int> face_piece_offset;  // size faces + 1
+  std::vector<int> face_pieces;
   // Bounding sphere (centre xyz, radius) of every coarse face, object frame.
   std::vector<Eigen::Vector4d> face_spheres;
   // Each piece's coarse faces grouped for culling (clustering picks the faces
@@ -127,5 +132,12 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
 bool piece_distance(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a,
                     const ModelGeometry& gb, int pb, double distance_tolerance, double& d, Vec3& p_a,
                     Vec3& p_b, Vec3& n, bool& fallback);
+
+// Support value of piece `piece` along `dir` (object frame): the largest
+// dir . x over the piece's vertices, by hill climbing on its vertex graph
+// (exact on a convex polytope). `warm` (optional) is the vertex to start from
+// and receives the vertex found, so repeated queries along nearby directions
+// take a few steps. Allocates nothing.
+double piece_support(const ModelGeometry& g, int piece, const Vec3& dir, int* warm = nullptr);
 
 }  // namespace hrt::collision
