@@ -98,7 +98,9 @@ Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOption
             {"ang_step", so.force.ang_step},
             {"shortcut", so.force.shortcut},
             {"margin", so.collision.margin},
-            {"max_patches", so.cluster.max_patches}}},
+            {"max_patches", so.cluster.max_patches},
+            {"auto_resolution", so.cluster.auto_resolution},
+            {"max_resolution", so.cluster.max_resolution}}},
           {"pairs", st.num_pairs},
           {"contacts", contacts},
           {"force", j3(st.force)},
@@ -129,7 +131,8 @@ void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptio
   for (int b = 1; b < scene.size(); ++b)
     std::printf("object %-4d %s (%s), tolerance %.4g mm\n", b, scene.model(b).path.c_str(), scene.model(b).name.c_str(),
                 scene.tolerance(b) * 1e3);
-  std::printf("model       k = %g N/m, N = %d, steps %s, %s\n", so.force.stiffness, so.force.resolution,
+  std::printf("model       k = %g N/m, N = %d%s, steps %s, %s\n", so.force.stiffness, so.force.resolution,
+              so.cluster.auto_resolution ? (" (auto, up to " + std::to_string(so.cluster.max_resolution) + ")").c_str() : "",
               so.force.lin_step > 0 || so.force.ang_step > 0 ? "explicit" : "one texel",
               so.force.shortcut ? "shortcut (Sec. 5.2)" : "full re-rasterization");
   std::printf("contacts    %d piece pairs -> %d patches\n\n", st.num_pairs, st.num_patches);

@@ -61,6 +61,8 @@ struct SceneFlags {
   double margin = -1.0;
   bool shortcut = false;
   int max_patches = hrt::ClusterOptions{}.max_patches;
+  bool auto_resolution = hrt::ClusterOptions{}.auto_resolution;
+  int max_resolution = hrt::ClusterOptions{}.max_resolution;
   bool verify_hashes = true;
 
   void add_to(CLI::App* cmd, bool with_resolution = true) {
@@ -81,6 +83,12 @@ struct SceneFlags {
         ->capture_default_str();
     cmd->add_flag("--shortcut", shortcut, "resample h_A(0) for the translated and n-rotated configurations (Sec. 5.2)");
     cmd->add_option("--max-patches", max_patches, "most contact patches per frame")->check(Integer())->capture_default_str();
+    cmd->add_flag("--auto-resolution", auto_resolution,
+                  "per patch, raise N (up to --max-resolution) until the grid texel is <= 1/4 of the bundles' "
+                  "min_wavelength");
+    cmd->add_option("--max-resolution", max_resolution, "budget of --auto-resolution: largest N of a patch")
+        ->check(Integer())
+        ->capture_default_str();
     cmd->add_flag("!--no-verify-hashes", verify_hashes, "skip the SHA-256 checks of the bundles' files");
   }
 
@@ -93,6 +101,8 @@ struct SceneFlags {
     o.force.shortcut = shortcut;
     o.collision.margin = margin;
     o.cluster.max_patches = max_patches;
+    o.cluster.auto_resolution = auto_resolution;
+    o.cluster.max_resolution = max_resolution;
     return o;
   }
 };

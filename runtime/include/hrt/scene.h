@@ -71,6 +71,24 @@ struct ClusterOptions {
   // max_normal_angle_deg, and their contact points on B are closer than
   // track_radius_factor times the previous window's side.
   double track_radius_factor = 0.5;
+  // Sampling (issue 8): with auto_resolution, each patch gets its own grid
+  // resolution N (>= ForceOptions::resolution, <= max_resolution, the
+  // budget) so that its grid texel stays at or below
+  // auto_cell_fraction x the smaller quality.min_wavelength of A and B
+  // (bundles that record none impose nothing). 1/4: min_wavelength is two
+  // atlas texels, so the grid texel is then at most half an atlas texel:
+  // every atlas texel is sampled at least twice along each axis and the grid
+  // maximum of the bilinear heights is missed by at most half a grid texel of
+  // slope (Sec. 7.2 asks only for half a wavelength, one atlas texel, which
+  // can skip a texel's extreme). Off by default: on the benchmark scenes
+  // (examples/bench_runtime.sh) the windows of the rasp on the CAD part span
+  // tens of millimetres over atlas texels of about 0.1 mm, so every patch
+  // would run at the budget (128: about 4 to 6 times the force cost of the
+  // default N = 50, README table), and the per-frame budget of the paper's
+  // scenes is N = 50. State reserves its depth buffers for max_resolution.
+  bool auto_resolution = false;
+  int max_resolution = 128;
+  double auto_cell_fraction = 0.25;
 };
 
 struct SceneOptions {
@@ -220,6 +238,7 @@ struct State {
   std::vector<double> vertex_proj_a, vertex_proj_b;      // 3 per coarse vertex: (u, v) and height of one patch
   std::vector<double> tri_box_a, tri_box_b;              // 4 per triangle of one patch: its (u, v) box
   std::vector<char> track_taken;                   // per previous track, during matching
+  std::vector<double> target_cell;                 // per object: auto-resolution texel target (0 = none)
   DepthScratch depth;
   void resize_pair_scratch(size_t n);  // the per-pair scratch above, for n pairs
 };

@@ -727,6 +727,11 @@ Scene::Scene(std::vector<const Model*> objects, const SceneOptions& options)
   if (!(c.max_normal_angle_deg > 0 && c.max_normal_angle_deg <= 180))
     throw std::invalid_argument("max_normal_angle_deg must be in (0, 180]");
   if (!(c.track_radius_factor >= 0)) throw std::invalid_argument("track_radius_factor must be >= 0");
+  if (c.auto_resolution && (c.max_resolution < f.resolution || c.max_resolution > 4096))
+    throw std::invalid_argument("max_resolution must be between the resolution (" + std::to_string(f.resolution) +
+                                ") and 4096, got " + std::to_string(c.max_resolution));
+  if (!(c.auto_cell_fraction > 0 && c.auto_cell_fraction <= 1))
+    throw std::invalid_argument("auto_cell_fraction must be in (0, 1]");
   if (!std::isfinite(options_.collision.margin)) throw std::invalid_argument("margin must be finite");
 
   world_ = std::make_unique<collision::World>(objects_);
@@ -807,7 +812,11 @@ State::State(const Scene& scene) {
   safety_mark_b.assign(maxbp, 0);
   piece_list_b.assign(maxbp, 0);
   track_taken.assign(static_cast<size_t>(maxp), 0);
-  depth.reserve(scene.options().force.resolution);
+  target_cell.assign(static_cast<size_t>(n), 0.0);
+  // The largest N any patch may use (ClusterOptions::auto_resolution).
+  const ClusterOptions& copt = scene.options().cluster;
+  depth.reserve(copt.auto_resolution ? std::max(scene.options().force.resolution, copt.max_resolution)
+                                     : scene.options().force.resolution);
 }
 
 namespace {

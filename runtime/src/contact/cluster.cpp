@@ -41,7 +41,10 @@
 //     side by the largest finite-difference displacement (lin_step, and
 //     ang_step times the distance from A's centre of mass; one grid texel by
 //     default) plus one texel on each side for the snapping; square, N x N
-//     texels. The texel size is quantised to the ladder 2^(k/4) m (with
+//     texels (N = ForceOptions::resolution, or with
+//     ClusterOptions::auto_resolution the smallest N up to max_resolution
+//     whose texel is at most auto_cell_fraction x the shorter
+//     min_wavelength). The texel size is quantised to the ladder 2^(k/4) m (with
 //     hysteresis for tracked patches) and the origin is snapped to the lattice
 //     {t_B + i cell u + j cell v} fixed to B, so texel centres stay put on B
 //     while A moves and the samples do not swim. Triangles whose (u, v) box
@@ -271,6 +274,15 @@ void cluster_pairs(const Scene& scene, State& st) {
   const Eigen::Isometry3d world_from_a = st.poses[0].iso();
   const Vec3 c_a = world_from_a * A.mass.center_of_mass;
   const int N = fopt.resolution;
+  // Auto resolution: the grid texel each B's patches aim at (0 = none).
+  const int max_n = copt.auto_resolution ? std::max(N, copt.max_resolution) : N;
+  double* target_cell = st.target_cell.data();
+  for (int b = 0; b < scene.size(); ++b) {
+    double lam = std::numeric_limits<double>::infinity();
+    if (A.quality.min_wavelength > 0) lam = std::min(lam, A.quality.min_wavelength);
+    if (scene.model(b).quality.min_wavelength > 0) lam = std::min(lam, scene.model(b).quality.min_wavelength);
+    target_cell[b] = copt.auto_resolution && std::isfinite(lam) ? copt.auto_cell_fraction * lam : 0.0;
+  }
 
   // --- weights and union-find ------------------------------------------------
   for (int i = 0; i < np; ++i) {
@@ -558,17 +570,26 @@ void cluster_pairs(const Scene& scene, State& st) {
     // Centring the window and snapping its origin down to the lattice costs
     // up to one texel on either side, hence
     //   N cell >= extent + 2 (pad_fixed + pad_cells cell) + 2 cell.
-    const double denom = static_cast<double>(N - 2 - 2 * pad_cells);
-    double cell_min = (extent + 2.0 * pad_fixed) / denom;
-    const double floor_cell = std::max(2.0 * scene.tolerance(b) / N, 1e-9);
-    cell_min = std::max(cell_min, floor_cell);
-    double cell = ladder_cell(cell_min);
-    if (prev && prev->cell >= cell_min && prev->cell <= cell_min * std::sqrt(2.0)) cell = prev->cell;
-    const double side = N * cell;
+    // With auto_resolution, N grows (up to the budget) until the texel is at
+    // most auto_cell_fraction x the shorter min_wavelength.
+    int Np = N;
+    double cell = 0.0, cell_min = 0.0;
+    for (;;) {
+      const double denom = static_cast<double>(Np - 2 - 2 * pad_cells);
+      cell_min = (extent + 2.0 * pad_fixed) / denom;
+      const double floor_cell = std::max(2.0 * scene.tolerance(b) / Np, 1e-9);
+      cell_min = std::max(cell_min, floor_cell);
+      cell = ladder_cell(cell_min);
+      if (prev && prev->cell >= cell_min && prev->cell <= cell_min * std::sqrt(2.0)) cell = prev->cell;
+      if (!(target_cell[b] > 0) || cell <= target_cell[b] || Np >= max_n) break;
+      // The texel shrinks about as 1 / N; one more step absorbs the ladder.
+      Np = std::min(max_n, std::max(Np + 1, static_cast<int>(std::ceil(Np * cell / target_cell[b])) + 1));
+    }
+    const double side = Np * cell;
     const double lo_u = cell * std::floor((cu - 0.5 * side) / cell + 1e-9);
     const double lo_v = cell * std::floor((cv - 0.5 * side) / cell + 1e-9);
     patch.window.cell = cell;
-    patch.window.resolution = N;
+    patch.window.resolution = Np;
     patch.window.origin = anchor + lo_u * u + lo_v * v + (n.dot(mid - anchor)) * n;
 
     // Drop triangles that cannot reach the window in any configuration.
