@@ -60,6 +60,7 @@ struct SceneFlags {
   double ang_step = 0.0;
   double margin = -1.0;
   bool shortcut = false;
+  std::string heights = "surface";
   int max_patches = hrt::ClusterOptions{}.max_patches;
   bool auto_resolution = hrt::ClusterOptions{}.auto_resolution;
   int max_resolution = hrt::ClusterOptions{}.max_resolution;
@@ -82,6 +83,11 @@ struct SceneFlags {
         ->check(RealNumber())
         ->capture_default_str();
     cmd->add_flag("--shortcut", shortcut, "resample h_A(0) for the translated and n-rotated configurations (Sec. 5.2)");
+    cmd->add_option("--heights", heights,
+                    "surface: the reconstructed full surface on each texel column (parallax corrected); coarse: the "
+                    "literal Eq. 8 of format 1.0 (n . f(q) at the coarse point q's column)")
+        ->check(CLI::IsMember({"surface", "coarse"}))
+        ->capture_default_str();
     cmd->add_option("--max-patches", max_patches, "most contact patches per frame")->check(Integer())->capture_default_str();
     cmd->add_flag("--auto-resolution", auto_resolution,
                   "per patch, raise N (up to --max-resolution) until the grid texel is <= 1/4 of the bundles' "
@@ -99,6 +105,7 @@ struct SceneFlags {
     o.force.lin_step = lin_step;
     o.force.ang_step = ang_step;
     o.force.shortcut = shortcut;
+    o.force.heights = heights == "coarse" ? hrt::HeightMode::coarse : hrt::HeightMode::surface;
     o.collision.margin = margin;
     o.cluster.max_patches = max_patches;
     o.cluster.auto_resolution = auto_resolution;

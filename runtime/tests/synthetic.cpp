@@ -256,6 +256,7 @@ SynthBlock make_block(const BlockSpec& spec_in) {
   M.quality.displacement_outward = std::abs(rel.amplitude) + std::abs(rel.offset);
   M.quality.displacement_inward = std::abs(rel.amplitude) + std::abs(rel.offset);
   M.quality.bbox_diagonal = std::sqrt(sx * sx + sy * sy + t * t);
+  prepare_surface_map(M);
   return out;
 }
 

@@ -62,7 +62,12 @@ TEST(DepthShortcut, AgreesWithFullRerasterization) {
       Scene S = make_scene(small_a, seed);
       DepthScratch scratch;
       scratch.reserve(50);
+      // The shortcut against the full re-rasterization of the same heights:
+      // the literal Eq. 8 ones, which both rasterize triangle by triangle
+      // (the surface mode's full path re-solves from seeds instead; that is
+      // checked against re-rasterization in SeededResolveMatchesRasterization).
       ForceOptions full, sc;
+      full.heights = sc.heights = HeightMode::coarse;
       sc.shortcut = true;
       const DepthGradient gf = compute_depth_gradient(S.A.model, S.pa, S.B.model, S.pb, S.patch, full, scratch);
       const DepthGradient gs = compute_depth_gradient(S.A.model, S.pa, S.B.model, S.pb, S.patch, sc, scratch);
@@ -85,6 +90,48 @@ TEST(DepthShortcut, AgreesWithFullRerasterization) {
       for (int i = 0; i < 5; ++i) EXPECT_NEAR(gf.grad[i], gs.grad[i], 1e-15 / cell) << "grad " << i;
       // Not vacuous: the n-rotation changes delta by much more than e_rot.
       EXPECT_GT(std::abs(gf.delta_at[9] - gf.delta_at[10]), 3 * e_rot);
+    }
+  }
+}
+
+// The surface mode's perturbed configurations are re-solved from the seeds of
+// configuration 0 (resolve_heights) rather than rasterized again. Both are
+// fixed points that project within the lateral tolerance e = kLateralTolerance
+// * min(cell, texel) of the texel centre, on the same reconstructed surface,
+// so two heights of one texel differ by at most 2 e s (s the surface's slope
+// along n: the sine grating's a k, times 1.05 for the tilt of n by the random
+// pose not being exactly the face normal, none here) plus float rounding of
+// the products (1e-9 m at these 1e-2 m coordinates); delta inherits it.
+// Coverage: where A's whole footprint lies inside B's and inside the window
+// (small_a == false has A as large as B, true a 3 mm A), every texel the
+// maximum can come from is covered in both.
+TEST(DepthShortcut, SeededResolveMatchesRasterization) {
+  for (bool small_a : {false, true}) {
+    for (int seed : {1, 2, 3}) {
+      Scene S = make_scene(small_a, seed);
+      DepthScratch scratch;
+      scratch.reserve(50);
+      ForceOptions opt;  // surface mode, full path (seeded)
+      const DepthGradient g = compute_depth_gradient(S.A.model, S.pa, S.B.model, S.pb, S.patch, opt, scratch);
+      ASSERT_TRUE(g.covered);
+      const double cell = S.patch.window.cell;
+      const double e = kLateralTolerance * std::min(cell, S.A.model.quality.texel_size);
+      const double slope = S.hess / (2 * kPi / 2e-3);  // a k
+      const double bound = 2 * e * slope * 1.05 + 1e-9;
+      const Vec3 c_a = S.pa.iso() * S.A.model.mass.center_of_mass;
+      double worst = 0;
+      for (int c = 1; c < static_cast<int>(Config::count); ++c) {
+        const Eigen::Isometry3d T =
+            config_motion(static_cast<Config>(c), S.patch, c_a, g.lin_step, g.ang_step) * S.pa.iso();
+        bool cov = false;
+        const double d = directional_depth(S.A.model, T, S.B.model, S.pb.iso(), S.patch, scratch, &cov);
+        ASSERT_TRUE(cov);
+        EXPECT_NEAR(g.delta_at[c], d, bound) << "config " << c;
+        worst = std::max(worst, std::abs(g.delta_at[c] - d));
+      }
+      // Not vacuous: the configurations differ from configuration 0 by far more.
+      EXPECT_GT(std::abs(g.delta_at[1] - g.delta_at[2]), 20 * bound);
+      std::printf("seeded vs rasterized (small_a %d, seed %d): worst %.3g m, bound %.3g m\n", small_a, seed, worst, bound);
     }
   }
 }

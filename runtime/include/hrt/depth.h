@@ -49,7 +49,38 @@ constexpr double kDefaultStiffness = 1000.0;
 // Default grid resolution N (the paper's 50 x 50 buffer, Sec. 6.1 and 6.4).
 constexpr int kDefaultResolution = 50;
 
+// How a texel's height is found (docs/bundle-format.md, "Heights").
+enum class HeightMode : int {
+  // The reconstructed full surface on the texel's column (default): for each
+  // coarse triangle whose atlas points can lie beside their coarse point's
+  // column by more than the lateral tolerance (SurfaceMap::lateral_bound),
+  // the triangle's projection is grown by that bound and every texel centre
+  // x in it is solved by the fixed point q <- q + (x - P(f(q))) (q a point of
+  // the triangle in grid coordinates, P the projection along n), until the
+  // atlas point f(q) projects within the lateral tolerance of x; the height is
+  // n . f(q). Lookups never interpolate across a discontinuity of the atlas
+  // (SurfaceMap::quad_ok). Other triangles are rasterized as in `coarse`.
+  surface = 0,
+  // The literal Eq. 8 of bundle format 1.0: n . f(q) at q's own column, q the
+  // coarse point under the texel centre (parallax included). For comparison
+  // and benchmarks.
+  coarse = 1,
+};
+
+// Lateral tolerance of the surface mode, as a fraction of the smaller of the
+// grid texel and the model's atlas texel: a converged f(q) projects within
+// this of the texel centre, so the height error it adds is at most
+// kLateralTolerance * min(cell, texel) * slope.
+constexpr double kLateralTolerance = 0.05;
+// Most fixed-point iterations per texel and triangle (each is one bilinear
+// lookup); the iteration contracts by the lateral stretch of f, ~0.3 on the
+// steepest relief of the test scenes, so 8 reach 1e-4 of the first offset.
+constexpr int kMaxLateralIterations = 8;
+
 struct ForceOptions {
+  // Heights of Eq. 8: the reconstructed surface on the texel column (default)
+  // or the literal coarse-column lookup of format 1.0 (see HeightMode).
+  HeightMode heights = HeightMode::surface;
   // N: the grid of a patch window is N x N texels (the clustering code builds
   // windows with this N; compute_patch_wrench uses patch.window.resolution).
   int resolution = kDefaultResolution;
@@ -85,6 +116,19 @@ struct DepthWarnings {
   uint64_t uncovered_configurations = 0;
 };
 
+// Per-texel seeds of the surface mode: the atlas coordinates (2 doubles per
+// texel) of the point each texel kept at configuration 0, and the
+// atlas-per-grid Jacobian (4 floats) of the coarse triangle it came from.
+struct HeightSeeds {
+  std::vector<double> a;
+  std::vector<float> j;
+  void reserve(int side) {  // side = N + 2 border
+    const size_t n2 = static_cast<size_t>(side) * side;
+    if (a.size() < 2 * n2) a.resize(2 * n2);
+    if (j.size() < 4 * n2) j.resize(4 * n2);
+  }
+};
+
 // Preallocated buffers for one patch evaluation (one per thread).
 // Heights are stored relative to n . window.origin, in metres, as double;
 // an uncovered texel of A holds -inf, of B +inf, so h_A - h_B is -inf there
@@ -95,6 +139,7 @@ struct DepthScratch {
   std::vector<double> ha0;          // A at configuration 0, (N + 2 b)^2 with border b
   std::vector<double> ha;           // A at one configuration (directional_depth)
   std::vector<double> hcfg;         // A at the 10 perturbed configurations, N x N each
+  HeightSeeds seeds;                // A's configuration-0 seeds (surface mode)
 
   // Border of the shortcut's h_A(0) map reserved by reserve() (texels); a
   // larger lin_step makes compute_patch_wrench grow the buffers once.
@@ -136,7 +181,8 @@ bool grid_undersamples(const Model& A, const Model& B, const Window& w);
 // to n . w.origin. Allocates nothing.
 void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m,
                        const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
-                       const Window& w, int border, bool keep_max, double* out);
+                       const Window& w, int border, bool keep_max, double* out,
+                       HeightMode mode = HeightMode::surface);
 
 // The same for `count` placements of M at once (out[k] gets placement k,
 // with border borders[k], or 0 when borders is null): triangle by triangle,
@@ -144,7 +190,25 @@ void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m,
 // the cache for all placements but the first (they differ by about a texel).
 void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from_m, const int* borders, int count,
                              const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
-                             const Window& w, bool keep_max, double* const* out);
+                             const Window& w, bool keep_max, double* const* out,
+                             HeightMode mode = HeightMode::surface);
+
+// rasterize_heights in the surface mode (with `border`, same layout), also
+// writing each texel's seed (seeds reserved for w.resolution + 2 border).
+void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_from_m,
+                              const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
+                              const Window& w, int border, bool keep_max, double* out, HeightSeeds& seeds);
+
+// The surface-mode heights of M at a placement close to the one that made
+// `seeds` (a finite-difference configuration of Eq. 7: at most a texel or so
+// of motion): per texel covered at that placement (seed_h finite), the fixed
+// point of HeightMode::surface started from the seed's atlas point. A texel
+// uncovered there stays uncovered (coverage is that of configuration 0),
+// and so does one whose iteration does not converge. seed_h and seeds have
+// `border` (as rasterize_heights_seeded wrote them); out is N x N.
+void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Vec3& n, const Vec3& u,
+                     const Vec3& v, const Window& w, bool keep_max, const double* seed_h, int border,
+                     const HeightSeeds& seeds, double* out);
 
 // Eq. 9 for one configuration of A: world_from_a is A's whole placement
 // (pose_a.iso(), possibly composed with a config_motion), world_from_b B's.
@@ -155,7 +219,8 @@ void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from
 // compute_patch_wrench.
 double directional_depth(const Model& A, const Eigen::Isometry3d& world_from_a, const Model& B,
                          const Eigen::Isometry3d& world_from_b, const ContactPatch& patch,
-                         DepthScratch& scratch, bool* covered = nullptr);
+                         DepthScratch& scratch, bool* covered = nullptr,
+                         HeightMode mode = HeightMode::surface);
 
 // delta and gradient of one patch, without forces (the force model below
 // is Eq. 5 applied to these). delta_at[c] holds delta at configuration c

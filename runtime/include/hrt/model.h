@@ -16,6 +16,8 @@
 #include <Eigen/Geometry>
 #include <nlohmann/json.hpp>
 
+#include "hrt/surface.h"
+
 namespace hrt {
 
 using Vec2f = Eigen::Vector2f;
@@ -94,6 +96,9 @@ struct Model {
   Atlas atlas;
   MassProperties mass;
   Quality quality;
+  // Derived at load (prepare_surface_map, hrt/surface.h): what the depth code
+  // needs to evaluate the reconstructed full surface on a texel column.
+  SurfaceMap surface;
 
   nlohmann::json manifest;  // the whole manifest, for fields not mirrored above
 };

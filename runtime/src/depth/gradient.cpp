@@ -21,6 +21,7 @@ void ensure_capacity(DepthScratch& s, int N, int border) {
   const int S = N + 2 * border;
   if (s.capacity < N) s.reserve(N);
   if (s.ha0.size() < static_cast<size_t>(S) * S) s.ha0.resize(static_cast<size_t>(S) * S);  // one growth only
+  s.seeds.reserve(S);
 }
 
 // max over k < n of a[k] - b[k]. -inf - finite = -inf, and (since A's
@@ -131,6 +132,7 @@ void DepthScratch::reserve(int resolution) {
   ha.resize(n2);
   hcfg.resize(10 * n2);
   if (ha0.size() < s * s) ha0.resize(s * s);
+  seeds.reserve(static_cast<int>(s));
   capacity = resolution;
 }
 
@@ -213,13 +215,22 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     // Clamped in double first: disp can exceed int for a far c_A.
     border = std::isnan(disp) ? N : static_cast<int>(std::clamp(std::ceil(disp - 1e-9), 1.0, static_cast<double>(N)));
   }
+  // Surface mode without the shortcut: seeded re-solves (below); whole-texel
+  // translations by shifting.
+  const bool seeded = opt.heights == HeightMode::surface && !opt.shortcut && A.surface.ready;
+  int shift_m = 0;
+  if (seeded) {
+    const double s = du / cell, rs = std::round(s);
+    if (std::abs(s - rs) < 1e-9 && rs >= 1 && rs <= DepthScratch::kReservedBorder) shift_m = static_cast<int>(rs);
+    border = shift_m;
+  }
   ensure_capacity(scratch, N, border);
   const int S = N + 2 * border;
 
   const std::vector<uint32_t>& ta = patch.tris_a;
   const std::vector<uint32_t>& tb = patch.tris_b;
   const Vec3 &n = patch.n, &u = patch.u, &v = patch.v;
-  rasterize_heights(B, Tb, tb, n, u, v, patch.window, 0, false, scratch.hb.data());
+  rasterize_heights(B, Tb, tb, n, u, v, patch.window, 0, false, scratch.hb.data(), opt.heights);
   const double* hb = scratch.hb.data();
   const double* ha0 = scratch.ha0.data();
   const size_t n2 = static_cast<size_t>(N) * N;
@@ -243,13 +254,37 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     bufs[count] = scratch.hcfg.data() + (c - 1) * n2;
     rendered[count++] = c;
   }
-  rasterize_heights_multi(A, T, borders, count, ta, n, u, v, patch.window, true, bufs);
+  if (seeded) {
+    // Configuration 0 rasterized with seeds, the others re-solved from them
+    // (each moves the window's points by about a texel, so the fixed point
+    // converges in a lookup or two from the seed, and no triangle is
+    // rasterized again; coverage is configuration 0's). A translation by a
+    // whole number m of texels along u or v moves A's surface, and so its
+    // height map, by exactly m texels: those four are shifts of h_A(0),
+    // rasterized with a border of m.
+    rasterize_heights_seeded(A, T[0], ta, n, u, v, patch.window, border, true, bufs[0], scratch.seeds);
+    for (int k = 1; k < count; ++k) {
+      const int c = rendered[k];
+      if (shift_m > 0 && c >= 1 && c <= 4) continue;
+      resolve_heights(A, T[k], n, u, v, patch.window, true, bufs[0], border, scratch.seeds, bufs[k]);
+    }
+  } else {
+    rasterize_heights_multi(A, T, borders, count, ta, n, u, v, patch.window, true, bufs, opt.heights);
+  }
 
   D[0] = shifted_depth(ha0, S, border, hb, N, 0, 0);
   if (D[0] == -kInf) return out;  // nothing covered by both: no contact
   out.covered = true;
   out.delta = D[0];
-  for (int k = 1; k < count; ++k) D[rendered[k]] = shifted_depth(bufs[k], N, 0, hb, N, 0, 0);
+  for (int k = 1; k < count; ++k) {
+    const int c = rendered[k];
+    if (seeded && shift_m > 0 && c >= 1 && c <= 4) {
+      const int di = c == 1 ? shift_m : c == 2 ? -shift_m : 0, dj = c == 3 ? shift_m : c == 4 ? -shift_m : 0;
+      D[c] = shifted_depth(ha0, S, border, hb, N, di, dj);
+    } else {
+      D[c] = shifted_depth(bufs[k], N, 0, hb, N, 0, 0);
+    }
+  }
 
   if (opt.shortcut) {
     const double s = du / cell;  // texels

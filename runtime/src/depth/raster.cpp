@@ -34,6 +34,10 @@ struct HeightSampler {
   int w, h;
   size_t stride;  // floats per atlas row
   float n[4];     // n_obj, 0 for the coverage channel
+  // SurfaceMap::quad_ok (surface mode), or null (coarse mode: every quad is
+  // used, as format 1.0 reads). A lookup in an unusable quad returns NaN,
+  // which the max / min of the callers ignore (std::max(a, NaN) == a).
+  const uint8_t* ok;
 
   // Clamped lookup, valid anywhere.
   inline double clamped(double ax, double ay) const {
@@ -42,6 +46,7 @@ struct HeightSampler {
     const int i0 = static_cast<int>(fx0), j0 = static_cast<int>(fy0);
     const int ia = std::clamp(i0, 0, w - 1), ib = std::clamp(i0 + 1, 0, w - 1);
     const int ja = std::clamp(j0, 0, h - 1), jb = std::clamp(j0 + 1, 0, h - 1);
+    if (ok && !ok[static_cast<size_t>(ja) * w + ia]) return std::numeric_limits<double>::quiet_NaN();
     return lerp_dot(rgba + ja * stride + ia * 4, rgba + ja * stride + ib * 4, rgba + jb * stride + ia * 4,
                     rgba + jb * stride + ib * 4, fx, fy);
   }
@@ -50,8 +55,63 @@ struct HeightSampler {
   inline double inside(double ax, double ay) const {
     const int i0 = static_cast<int>(ax), j0 = static_cast<int>(ay);  // truncation == floor for ax, ay >= 0
     const float fx = static_cast<float>(ax - i0), fy = static_cast<float>(ay - j0);
+    if (ok && !ok[static_cast<size_t>(j0) * w + i0]) return std::numeric_limits<double>::quiet_NaN();
     const float* p = rgba + j0 * stride + i0 * 4;
     return lerp_dot(p, p + 4, p + stride, p + stride + 4, fx, fy);
+  }
+  // The bilinear point at atlas coordinates (ax, ay) (clamped lookup) dotted
+  // with gx, gy (float4, object frame, 0 last) and with n: its grid
+  // coordinates (before the placement's offsets) and height. Float, as the
+  // atlas is: the products are <= ~1e3 grid texels, so rounding is ~1e-4
+  // texel, far below the lateral tolerance. False in an unusable quad.
+  inline bool project(double ax, double ay, const float* gx4, const float* gy4, double& px, double& py,
+                      double& ph) const {
+    if (!(ax > -1e6 && ax < 1e6 && ay > -1e6 && ay < 1e6)) return false;  // also NaN
+    const double fx0 = std::floor(ax), fy0 = std::floor(ay);
+    const float fx = static_cast<float>(ax - fx0), fy = static_cast<float>(ay - fy0);
+    const int i0 = static_cast<int>(fx0), j0 = static_cast<int>(fy0);
+    const int ia = std::clamp(i0, 0, w - 1), ib = std::clamp(i0 + 1, 0, w - 1);
+    const int ja = std::clamp(j0, 0, h - 1), jb = std::clamp(j0 + 1, 0, h - 1);
+    if (ok && !ok[static_cast<size_t>(ja) * w + ia]) return false;
+    const float *a = rgba + ja * stride + ia * 4, *b = rgba + ja * stride + ib * 4;
+    const float *c = rgba + jb * stride + ia * 4, *d = rgba + jb * stride + ib * 4;
+#if defined(__SSE4_1__)
+    const __m128 va = _mm_loadu_ps(a), vb = _mm_loadu_ps(b), vc = _mm_loadu_ps(c), vd = _mm_loadu_ps(d);
+    const __m128 vfx = _mm_set1_ps(fx), vfy = _mm_set1_ps(fy);
+    const __m128 top = _mm_add_ps(va, _mm_mul_ps(vfx, _mm_sub_ps(vb, va)));
+    const __m128 bot = _mm_add_ps(vc, _mm_mul_ps(vfx, _mm_sub_ps(vd, vc)));
+    const __m128 v = _mm_add_ps(top, _mm_mul_ps(vfy, _mm_sub_ps(bot, top)));
+    px = _mm_cvtss_f32(_mm_dp_ps(v, _mm_loadu_ps(gx4), 0x71));
+    py = _mm_cvtss_f32(_mm_dp_ps(v, _mm_loadu_ps(gy4), 0x71));
+    ph = _mm_cvtss_f32(_mm_dp_ps(v, _mm_loadu_ps(n), 0x71));
+#else
+    float rx = 0, ry = 0, rh = 0;
+    for (int k = 0; k < 3; ++k) {
+      const float top = a[k] + fx * (b[k] - a[k]), bot = c[k] + fx * (d[k] - c[k]);
+      const float p = top + fy * (bot - top);
+      rx += gx4[k] * p, ry += gy4[k] * p, rh += n[k] * p;
+    }
+    px = rx, py = ry, ph = rh;
+#endif
+    return true;
+  }
+  // The object-space point (bilinear RGB, clamped lookup) at atlas
+  // coordinates (ax, ay); false in an unusable quad.
+  inline bool point(double ax, double ay, double* P) const {
+    if (!(ax > -1e6 && ax < 1e6 && ay > -1e6 && ay < 1e6)) return false;  // also NaN
+    const double fx0 = std::floor(ax), fy0 = std::floor(ay);
+    const double fx = ax - fx0, fy = ay - fy0;
+    const int i0 = static_cast<int>(fx0), j0 = static_cast<int>(fy0);
+    const int ia = std::clamp(i0, 0, w - 1), ib = std::clamp(i0 + 1, 0, w - 1);
+    const int ja = std::clamp(j0, 0, h - 1), jb = std::clamp(j0 + 1, 0, h - 1);
+    if (ok && !ok[static_cast<size_t>(ja) * w + ia]) return false;
+    const float *a = rgba + ja * stride + ia * 4, *b = rgba + ja * stride + ib * 4;
+    const float *c = rgba + jb * stride + ia * 4, *d = rgba + jb * stride + ib * 4;
+    for (int k = 0; k < 3; ++k) {
+      const double top = a[k] + fx * (b[k] - a[k]), bot = c[k] + fx * (d[k] - c[k]);
+      P[k] = top + fy * (bot - top);
+    }
+    return true;
   }
   inline double lerp_dot(const float* a, const float* b, const float* c, const float* d, float fx, float fy) const {
 #if defined(__SSE4_1__)
@@ -86,26 +146,196 @@ struct Placement {
   int S;            // side of the output buffer
   bool keep_max;
   double* out;
+  // Surface mode (HeightMode::surface): the model's surface map, n in the
+  // object frame, the lateral tolerance (grid texels) and the grid texel (m).
+  const SurfaceMap* surface;
+  Vec3 nobj;
+  double tol;
+  double cell;
+  // Optional seed outputs (config 0 of the surface mode, HeightSeeds): per
+  // texel the atlas coordinates of the point kept and the atlas-per-grid
+  // Jacobian of the triangle it came from.
+  double* seed_a = nullptr;
+  float* seed_j = nullptr;
+  float gx4[4], gy4[4];  // gx, gy as float4 for HeightSampler::project
 };
 
 Placement make_placement(const Model& M, const Eigen::Isometry3d& world_from_m, const Vec3& n, const Vec3& u,
-                         const Vec3& v, const Window& w, int border, bool keep_max, double* out) {
+                         const Vec3& v, const Window& w, int border, bool keep_max, double* out, HeightMode mode) {
+  const bool surf = mode == HeightMode::surface && M.surface.ready;
   const Mat3 R = world_from_m.linear();
   const Vec3 t = world_from_m.translation();
   const double inv_cell = 1.0 / w.cell;
   const Vec3 nobj = R.transpose() * n;
   const Atlas& at = M.atlas;
-  return Placement{R.transpose() * u * inv_cell,
+  Placement pl{R.transpose() * u * inv_cell,
                    R.transpose() * v * inv_cell,
                    (t - w.origin).dot(u) * inv_cell - 0.5 + border,
                    (t - w.origin).dot(v) * inv_cell - 0.5 + border,
                    (t - w.origin).dot(n),
                    HeightSampler{at.rgba.data(), at.width, at.height, static_cast<size_t>(at.width) * 4,
                                  {static_cast<float>(nobj.x()), static_cast<float>(nobj.y()),
-                                  static_cast<float>(nobj.z()), 0.0f}},
+                                  static_cast<float>(nobj.z()), 0.0f},
+                                 surf ? M.surface.quad_ok.data() : nullptr},
                    w.resolution + 2 * border,
                    keep_max,
-                   out};
+                   out,
+                   surf ? &M.surface : nullptr,
+                   nobj,
+                   kLateralTolerance * std::min(1.0, M.quality.texel_size > 0 ? M.quality.texel_size * inv_cell : 1.0),
+                   w.cell};
+  for (int k = 0; k < 3; ++k) {
+    pl.gx4[k] = static_cast<float>(pl.gx[k]);
+    pl.gy4[k] = static_cast<float>(pl.gy[k]);
+  }
+  pl.gx4[3] = pl.gy4[3] = 0.0f;
+  return pl;
+}
+
+inline void write_seed(const Placement& pl, size_t k, double a_x, double a_y, double jxx, double jxy, double jyx,
+                       double jyy) {
+  pl.seed_a[2 * k] = a_x;
+  pl.seed_a[2 * k + 1] = a_y;
+  float* J = pl.seed_j + 4 * k;
+  J[0] = static_cast<float>(jxx), J[1] = static_cast<float>(jxy), J[2] = static_cast<float>(jyx),
+  J[3] = static_cast<float>(jyy);
+}
+
+// The surface mode for a triangle whose atlas points can lie up to L grid
+// texels beside their coarse point's column (L > the lateral tolerance).
+//
+// Every texel centre X within L (+ tolerance) of the triangle's projection
+// can be the column of one of its points, so those are visited (the
+// triangle's box grown by L, then the three edges moved out by L). For each,
+// the fixed point q <- q + (X - P(f(q))) runs on the coarse point q (grid
+// coordinates of the triangle's plane, atlas coordinates by the triangle's
+// affine UV map, extended past its edges), starting from X clamped into the
+// triangle. It stops when P(f(q)) is within the tolerance of X (the height is
+// then n . f(q)), when q leaves the triangle grown by one atlas texel (that
+// point belongs to a neighbour, which visits X itself), when a lookup falls
+// in an unusable quad, or after kMaxLateralIterations. The contraction is
+// I - dP(f)/dq, small wherever f's lateral stretch is near 1 (f = q + w with
+// w slowly turning). Expressible in a fragment shader: one loop of lookups.
+void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, const double* x, const double* y,
+                             const double* ax, const double* ay, double L) {
+  const int S = pl.S;
+  const double tol = pl.tol, tol2 = tol * tol;
+  const double D = L + tol;
+  const double xmin = std::min({x[0], x[1], x[2]}) - D, xmax = std::max({x[0], x[1], x[2]}) + D;
+  const double ymin = std::min({y[0], y[1], y[2]}) - D, ymax = std::max({y[0], y[1], y[2]}) + D;
+  if (!(xmax >= 0) || !(xmin <= S - 1) || !(ymax >= 0) || !(ymin <= S - 1)) return;
+  const int i0 = static_cast<int>(std::ceil(std::max(xmin, 0.0)));
+  const int i1 = static_cast<int>(std::floor(std::min(xmax, static_cast<double>(S - 1))));
+  const int j0 = static_cast<int>(std::ceil(std::max(ymin, 0.0)));
+  const int j1 = static_cast<int>(std::floor(std::min(ymax, static_cast<double>(S - 1))));
+  if (i0 > i1 || j0 > j1) return;
+
+  const double e1x = x[1] - x[0], e1y = y[1] - y[0];
+  const double e2x = x[2] - x[0], e2y = y[2] - y[0];
+  const double area2 = e1x * e2y - e2x * e1y;
+  const double inv = 1.0 / area2;
+  const double dax_dx = ((ax[1] - ax[0]) * e2y - (ax[2] - ax[0]) * e1y) * inv;
+  const double dax_dy = ((ax[2] - ax[0]) * e1x - (ax[1] - ax[0]) * e2x) * inv;
+  const double day_dx = ((ay[1] - ay[0]) * e2y - (ay[2] - ay[0]) * e1y) * inv;
+  const double day_dy = ((ay[2] - ay[0]) * e1x - (ay[1] - ay[0]) * e2x) * inv;
+  // Barycentric b_k of grid point (px, py): b1 = ((px - x0) e2y - e2x (py - y0)) / area2,
+  // b2 = (e1x (py - y0) - (px - x0) e1y) / area2; outside distance of edge k
+  // (opposite corner k) = -b_k |area2| / |edge k|.
+  const double len[3] = {std::hypot(x[2] - x[1], y[2] - y[1]), std::hypot(x[0] - x[2], y[0] - y[2]),
+                         std::hypot(x[1] - x[0], y[1] - y[0])};
+  const double aa = std::abs(area2);
+  const double scale[3] = {aa / len[0], aa / len[1], aa / len[2]};  // b_k -> grid texels from edge k
+  // One atlas texel in grid texels (the triangle's UV map scales areas by
+  // |det|): the ownership margin.
+  const double det = std::abs(dax_dx * day_dy - dax_dy * day_dx);
+  const double margin = (det > 0 ? 1.0 / std::sqrt(det) : 1.0) + tol;
+  // The heights of f's points on this triangle lie within reach of its corners'.
+  const SurfaceMap::Face& sf = pl.surface->faces[f];
+  double hlo = kInf, hhi = -kInf;
+  for (int c = 0; c < 3; ++c) {
+    const double h = pl.nobj.dot(M.vertices[M.faces[f][c]]);
+    hlo = std::min(hlo, h);
+    hhi = std::max(hhi, h);
+  }
+  hlo += pl.oh - sf.reach;
+  hhi += pl.oh + sf.reach;
+  const HeightSampler& sample = pl.sample;
+  auto bary = [&](double px, double py, double* b) {
+    const double dx = px - x[0], dy = py - y[0];
+    b[1] = (dx * e2y - e2x * dy) * inv;
+    b[2] = (e1x * dy - dx * e1y) * inv;
+    b[0] = 1.0 - b[1] - b[2];
+  };
+
+  // b_k(x, y) is affine: b_k = alpha_k(y) + beta_k x along a row.
+  const double beta[3] = {-(e2y - e1y) * inv, e2y * inv, -e1y * inv};
+  for (int j = j0; j <= j1; ++j) {
+    // The row's span: b_k scale_k >= -D for the three edges.
+    double lo = i0, hi = i1;
+    {
+      double b0[3];
+      bary(0.0, j, b0);
+      for (int k = 0; k < 3 && lo <= hi; ++k) {
+        const double lim = -D / scale[k] - b0[k];  // beta_k x >= lim
+        if (beta[k] > 0) lo = std::max(lo, lim / beta[k]);
+        else if (beta[k] < 0) hi = std::min(hi, lim / beta[k]);
+        else if (lim > 0) hi = lo - 1;
+      }
+    }
+    if (!(lo <= hi)) continue;
+    const int ia = static_cast<int>(std::ceil(lo - 1e-9)), ib = static_cast<int>(std::floor(hi + 1e-9));
+    double* row = pl.out + static_cast<size_t>(j) * S;
+    // Warm start: the correction q - X of the previous texel of the row (f's
+    // offset changes little from one texel to the next), else X clamped into
+    // the triangle.
+    bool warm = false;
+    double wx = 0, wy = 0;
+    for (int i = std::max(ia, i0); i <= std::min(ib, i1); ++i) {
+      // A texel already at or beyond anything this triangle can give is done.
+      if (pl.keep_max ? row[i] >= hhi : row[i] <= hlo) {
+        warm = false;
+        continue;
+      }
+      double qx = i + wx, qy = j + wy;
+      double b[3];
+      bary(qx, qy, b);
+      if (!warm || b[0] * scale[0] < -margin || b[1] * scale[1] < -margin || b[2] * scale[2] < -margin) {
+        bary(i, j, b);
+        qx = i, qy = j;
+        if (b[0] < 0 || b[1] < 0 || b[2] < 0) {
+          const double c0 = std::max(b[0], 0.0), c1 = std::max(b[1], 0.0), c2 = std::max(b[2], 0.0);
+          const double cs = c0 + c1 + c2;
+          qx = (c0 * x[0] + c1 * x[1] + c2 * x[2]) / cs;
+          qy = (c0 * y[0] + c1 * y[1] + c2 * y[2]) / cs;
+        }
+      }
+      warm = false;
+      for (int it = 0; it < kMaxLateralIterations; ++it) {
+        const double a_x = ax[0] + dax_dx * (qx - x[0]) + dax_dy * (qy - y[0]);
+        const double a_y = ay[0] + day_dx * (qx - x[0]) + day_dy * (qy - y[0]);
+        double px, py, ph;
+        if (!sample.project(a_x, a_y, pl.gx4, pl.gy4, px, py, ph)) break;
+        const double rx = i - (px + pl.ox), ry = j - (py + pl.oy);
+        if (rx * rx + ry * ry <= tol2) {
+          const double h = ph + pl.oh;
+          if (pl.keep_max ? h > row[i] : h < row[i]) {
+            row[i] = h;
+            if (pl.seed_a)
+              write_seed(pl, static_cast<size_t>(j) * S + i, a_x, a_y, dax_dx, dax_dy, day_dx, day_dy);
+          }
+          warm = true;
+          wx = qx - i;
+          wy = qy - j;
+          break;
+        }
+        qx += rx;
+        qy += ry;
+        double bq[3];
+        bary(qx, qy, bq);
+        if (bq[0] * scale[0] < -margin || bq[1] * scale[1] < -margin || bq[2] * scale[2] < -margin) break;
+      }
+    }
+  }
 }
 
 // Rasterizes coarse triangle f of M under placement pl into pl.out.
@@ -126,6 +356,13 @@ void raster_triangle(const Model& M, uint32_t f, const Placement& pl) {
   const double e2x = x[2] - x[0], e2y = y[2] - y[0];
   const double area2 = e1x * e2y - e2x * e1y;
   if (std::abs(area2) < kMinArea2) return;
+  if (pl.surface) {
+    const double L = pl.surface->lateral_bound(f, pl.nobj) / pl.cell;  // grid texels
+    if (L > pl.tol) {
+      raster_triangle_surface(M, f, pl, x, y, ax, ay, L);
+      return;
+    }
+  }
   const double ymin = std::min({y[0], y[1], y[2]}), ymax = std::max({y[0], y[1], y[2]});
   // Clamped to the grid in double before the conversion: a far vertex (the
   // loader accepts any finite position) projects to ~1e10 texels, beyond int
@@ -177,7 +414,17 @@ void raster_triangle(const Model& M, uint32_t f, const Placement& pl) {
     const double ex = cax + dax_dx * (i1 - i0), ey = cay + day_dx * (i1 - i0);
     const bool in = std::min(cax, ex) >= 0 && std::max(cax, ex) < W - 1 - 1e-6 && std::min(cay, ey) >= 0 &&
                     std::max(cay, ey) < H - 1 - 1e-6;
-    if (in && pl.keep_max) {
+    if (pl.seed_a) {
+      // Config 0 with seeds: keep the atlas point of the winner as well.
+      const size_t base = static_cast<size_t>(j) * S;
+      for (int i = i0; i <= i1; ++i, cax += dax_dx, cay += day_dx) {
+        const double h = sample.clamped(cax, cay) + oh;  // NaN (unusable quad) never wins
+        if (pl.keep_max ? h > row[i] : h < row[i]) {
+          row[i] = h;
+          write_seed(pl, base + i, cax, cay, dax_dx, dax_dy, day_dx, day_dy);
+        }
+      }
+    } else if (in && pl.keep_max) {
       for (int i = i0; i <= i1; ++i, cax += dax_dx, cay += day_dx) row[i] = std::max(row[i], sample.inside(cax, cay) + oh);
     } else if (in) {
       for (int i = i0; i <= i1; ++i, cax += dax_dx, cay += day_dx) row[i] = std::min(row[i], sample.inside(cax, cay) + oh);
@@ -197,18 +444,18 @@ bool usable(const Model& M, const Window& w) {
 
 void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const std::vector<uint32_t>& tris,
                        const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, int border, bool keep_max,
-                       double* out) {
+                       double* out, HeightMode mode) {
   const int S = w.resolution + 2 * border;
   std::fill(out, out + static_cast<size_t>(std::max(S, 0)) * std::max(S, 0), keep_max ? -kInf : kInf);
   if (tris.empty() || !usable(M, w)) return;
-  const Placement pl = make_placement(M, world_from_m, n, u, v, w, border, keep_max, out);
+  const Placement pl = make_placement(M, world_from_m, n, u, v, w, border, keep_max, out, mode);
   for (uint32_t f : tris)
     if (f < M.faces.size()) raster_triangle(M, f, pl);
 }
 
 void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from_m, const int* borders, int count,
                              const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
-                             const Window& w, bool keep_max, double* const* out) {
+                             const Window& w, bool keep_max, double* const* out, HeightMode mode) {
   constexpr int kMax = 16;
   for (int k = 0; k < count; ++k) {
     const int S = std::max(w.resolution + 2 * (borders ? borders[k] : 0), 0);
@@ -222,7 +469,7 @@ void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from
     const int m = std::min(kMax, count - k0);
     Placement pl[kMax] = {};
     for (int k = 0; k < m; ++k)
-      pl[k] = make_placement(M, world_from_m[k0 + k], n, u, v, w, borders ? borders[k0 + k] : 0, keep_max, out[k0 + k]);
+      pl[k] = make_placement(M, world_from_m[k0 + k], n, u, v, w, borders ? borders[k0 + k] : 0, keep_max, out[k0 + k], mode);
     for (uint32_t f : tris) {
       if (f >= M.faces.size()) continue;
       for (int k = 0; k < m; ++k) raster_triangle(M, f, pl[k]);
@@ -230,15 +477,62 @@ void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from
   }
 }
 
+void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_from_m, const std::vector<uint32_t>& tris,
+                              const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, int border, bool keep_max,
+                              double* out, HeightSeeds& seeds) {
+  const int S = std::max(w.resolution + 2 * border, 0);
+  std::fill(out, out + static_cast<size_t>(S) * S, keep_max ? -kInf : kInf);
+  if (tris.empty() || !usable(M, w)) return;
+  Placement pl = make_placement(M, world_from_m, n, u, v, w, border, keep_max, out, HeightMode::surface);
+  pl.seed_a = seeds.a.data();
+  pl.seed_j = seeds.j.data();
+  for (uint32_t f : tris)
+    if (f < M.faces.size()) raster_triangle(M, f, pl);
+}
+
+void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Vec3& n, const Vec3& u,
+                     const Vec3& v, const Window& w, bool keep_max, const double* seed_h, int border,
+                     const HeightSeeds& seeds, double* out) {
+  const int N = w.resolution;
+  const size_t n2 = static_cast<size_t>(std::max(N, 0)) * std::max(N, 0);
+  const double none = keep_max ? -kInf : kInf;
+  if (!usable(M, w)) {
+    std::fill(out, out + n2, none);
+    return;
+  }
+  const Placement pl = make_placement(M, world_from_m, n, u, v, w, 0, keep_max, out, HeightMode::surface);
+  const double tol2 = pl.tol * pl.tol;
+  for (int j = 0; j < N; ++j)
+    for (int i = 0; i < N; ++i) {
+      const size_t k = static_cast<size_t>(j) * N + i;
+      const size_t ks = static_cast<size_t>(j + border) * (N + 2 * border) + (i + border);  // in the bordered seeds
+      out[k] = none;
+      if (!(std::abs(seed_h[ks]) < kInf)) continue;  // not covered at configuration 0
+      double a_x = seeds.a[2 * ks], a_y = seeds.a[2 * ks + 1];
+      const float* J = &seeds.j[4 * ks];
+      for (int it = 0; it < kMaxLateralIterations; ++it) {
+        double px, py, ph;
+        if (!pl.sample.project(a_x, a_y, pl.gx4, pl.gy4, px, py, ph)) break;
+        const double rx = i - (px + pl.ox), ry = j - (py + pl.oy);
+        if (rx * rx + ry * ry <= tol2) {
+          out[k] = ph + pl.oh;
+          break;
+        }
+        a_x += J[0] * rx + J[1] * ry;
+        a_y += J[2] * rx + J[3] * ry;
+      }
+    }
+}
+
 double directional_depth(const Model& A, const Eigen::Isometry3d& world_from_a, const Model& B,
                          const Eigen::Isometry3d& world_from_b, const ContactPatch& patch, DepthScratch& scratch,
-                         bool* covered) {
+                         bool* covered, HeightMode mode) {
   const int N = patch.window.resolution;
   if (scratch.capacity < N) scratch.reserve(N);
   rasterize_heights(B, world_from_b, patch.tris_b, patch.n, patch.u, patch.v, patch.window, 0, false,
-                    scratch.hb.data());
+                    scratch.hb.data(), mode);
   rasterize_heights(A, world_from_a, patch.tris_a, patch.n, patch.u, patch.v, patch.window, 0, true,
-                    scratch.ha.data());
+                    scratch.ha.data(), mode);
   double d = -kInf;
   const size_t count = static_cast<size_t>(N) * N;
   const double* ha = scratch.ha.data();

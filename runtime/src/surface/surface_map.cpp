@@ -1,0 +1,175 @@
+// prepare_surface_map (hrt/surface.h): per-face lateral-offset cones and the
+// per-quad usability mask of the atlas.
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "hrt/model.h"
+#include "hrt/surface.h"
+
+namespace hrt {
+namespace {
+
+// Texels whose centre lies within this many texels of a face's UV triangle
+// count as read by the face's lookups: a bilinear lookup at a point inside
+// the triangle reads texels at Chebyshev distance < 1 from it.
+constexpr double kReadMargin = 1.0;
+
+// Spec default of atlas.gutter (docs/bundle-format.md), for models that carry
+// no manifest (tests that build a Model by hand).
+constexpr int kDefaultGutter = 4;
+
+int manifest_gutter(const Model& m) {
+  const nlohmann::json& j = m.manifest;
+  if (j.is_object() && j.contains("atlas") && j["atlas"].is_object() && j["atlas"].contains("gutter") &&
+      j["atlas"]["gutter"].is_number_integer())
+    return std::max(1, j["atlas"]["gutter"].get<int>());
+  return kDefaultGutter;
+}
+
+// filled[t]: texel t within `g` (Chebyshev) of a covered texel (A != 0):
+// a separable max filter of the coverage, rows then columns.
+std::vector<uint8_t> filled_mask(const Atlas& at, int g) {
+  const int W = at.width, H = at.height;
+  std::vector<uint8_t> cov(static_cast<size_t>(W) * H), tmp(cov.size()), out(cov.size());
+  for (size_t t = 0; t < cov.size(); ++t) cov[t] = at.rgba[4 * t + 3] != 0.0f;
+  // Row pass: distance to the last covered texel on either side within g.
+  for (int j = 0; j < H; ++j) {
+    const uint8_t* c = &cov[static_cast<size_t>(j) * W];
+    uint8_t* o = &tmp[static_cast<size_t>(j) * W];
+    int last = -(1 << 30);
+    for (int i = 0; i < W; ++i) {
+      if (c[i]) last = i;
+      o[i] = i - last <= g;
+    }
+    last = 1 << 30;
+    for (int i = W - 1; i >= 0; --i) {
+      if (c[i]) last = i;
+      o[i] = o[i] || last - i <= g;
+    }
+  }
+  for (int i = 0; i < W; ++i) {
+    int last = -(1 << 30);
+    for (int j = 0; j < H; ++j) {
+      if (tmp[static_cast<size_t>(j) * W + i]) last = j;
+      out[static_cast<size_t>(j) * W + i] = j - last <= g;
+    }
+    last = 1 << 30;
+    for (int j = H - 1; j >= 0; --j) {
+      if (tmp[static_cast<size_t>(j) * W + i]) last = j;
+      uint8_t& o = out[static_cast<size_t>(j) * W + i];
+      o = o || last - j <= g;
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+void prepare_surface_map(Model& model) {
+  SurfaceMap& sm = model.surface;
+  sm = SurfaceMap{};
+  const Atlas& at = model.atlas;
+  const int W = at.width, H = at.height;
+  if (W <= 0 || H <= 0 || at.rgba.size() != static_cast<size_t>(W) * H * 4) return;
+  const double texel = model.quality.texel_size;
+  sm.jump = texel > 0 ? kJumpTexels * texel : 0.0;
+
+  // --- quads -----------------------------------------------------------------
+  const std::vector<uint8_t> filled = filled_mask(at, manifest_gutter(model));
+  sm.quad_ok.assign(static_cast<size_t>(W) * H, 0);
+  const double jump2 = sm.jump * sm.jump;
+  auto pos = [&](int i, int j) {
+    const float* p = at.texel(i, j);
+    return Eigen::Vector3d(p[0], p[1], p[2]);
+  };
+  for (int j = 0; j < H; ++j) {
+    const int j1 = std::min(j + 1, H - 1);
+    for (int i = 0; i < W; ++i) {
+      const int i1 = std::min(i + 1, W - 1);
+      const size_t t00 = static_cast<size_t>(j) * W + i, t10 = static_cast<size_t>(j) * W + i1;
+      const size_t t01 = static_cast<size_t>(j1) * W + i, t11 = static_cast<size_t>(j1) * W + i1;
+      const bool any = filled[t00] || filled[t10] || filled[t01] || filled[t11];
+      if (!(filled[t00] && filled[t10] && filled[t01] && filled[t11])) continue;
+      bool ok = true;
+      if (jump2 > 0) {
+        const Eigen::Vector3d a = pos(i, j), b = pos(i1, j), c = pos(i, j1), d = pos(i1, j1);
+        ok = (a - b).squaredNorm() <= jump2 && (c - d).squaredNorm() <= jump2 && (a - c).squaredNorm() <= jump2 &&
+             (b - d).squaredNorm() <= jump2;
+      }
+      sm.quad_ok[t00] = ok;
+      if (!ok && any) ++sm.cut_quads;
+    }
+  }
+
+  // --- faces -----------------------------------------------------------------
+  const size_t F = model.faces.size();
+  sm.faces.assign(F, SurfaceMap::Face{});
+  std::vector<Eigen::Vector3d> w;  // offsets of one face (reused)
+  for (size_t f = 0; f < F; ++f) {
+    const Tri& tri = model.faces[f];
+    // Atlas texel coordinates of the corners (spec: x = u W - 0.5, y = (1 - v) H - 0.5).
+    double ax[3], ay[3];
+    for (int c = 0; c < 3; ++c) {
+      ax[c] = static_cast<double>(model.uvs[f][c].x()) * W - 0.5;
+      ay[c] = (1.0 - static_cast<double>(model.uvs[f][c].y())) * H - 0.5;
+    }
+    const double e1x = ax[1] - ax[0], e1y = ay[1] - ay[0], e2x = ax[2] - ax[0], e2y = ay[2] - ay[0];
+    const double area2 = e1x * e2y - e2x * e1y;
+    w.clear();
+    if (std::abs(area2) > 1e-12) {
+      // Edge lengths, for the signed distances of a texel centre to the edges.
+      const double len[3] = {std::hypot(ax[2] - ax[1], ay[2] - ay[1]), std::hypot(ax[0] - ax[2], ay[0] - ay[2]),
+                             std::hypot(ax[1] - ax[0], ay[1] - ay[0])};
+      const int i0 = std::max(0, static_cast<int>(std::floor(std::min({ax[0], ax[1], ax[2]}) - kReadMargin)));
+      const int i1 = std::min(W - 1, static_cast<int>(std::ceil(std::max({ax[0], ax[1], ax[2]}) + kReadMargin)));
+      const int j0 = std::max(0, static_cast<int>(std::floor(std::min({ay[0], ay[1], ay[2]}) - kReadMargin)));
+      const int j1 = std::min(H - 1, static_cast<int>(std::ceil(std::max({ay[0], ay[1], ay[2]}) + kReadMargin)));
+      const Eigen::Vector3d &P0 = model.vertices[tri[0]], &P1 = model.vertices[tri[1]], &P2 = model.vertices[tri[2]];
+      for (int j = j0; j <= j1; ++j)
+        for (int i = i0; i <= i1; ++i) {
+          // Barycentrics of the texel centre (i, j) in the UV triangle.
+          const double dx = i - ax[0], dy = j - ay[0];
+          const double b1 = (dx * e2y - e2x * dy) / area2, b2 = (e1x * dy - dx * e1y) / area2, b0 = 1 - b1 - b2;
+          // Distance outside each edge, in texels (b_k * 2 area / |edge k|).
+          const double b[3] = {b0, b1, b2};
+          bool near = true;
+          for (int k = 0; k < 3; ++k) near = near && b[k] * std::abs(area2) / len[k] >= -kReadMargin;
+          if (!near) continue;
+          const float* p = at.texel(i, j);
+          const Eigen::Vector3d q = b0 * P0 + b1 * P1 + b2 * P2;
+          w.push_back(Eigen::Vector3d(p[0], p[1], p[2]) - q);
+        }
+    }
+    SurfaceMap::Face& out = sm.faces[f];
+    if (w.empty()) continue;  // no texel read: the face has no lateral offset to correct
+    // The lateral offset of w and of -w are the same, and the relief goes
+    // both ways (in and out of the coarse surface): the cone is around the
+    // *line* of the axis. Axis: the mean of the offset directions, each
+    // flipped to the side of the face normal.
+    const Eigen::Vector3d& nf = model.face_normals[f];
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    double reach = 0.0;
+    for (const Eigen::Vector3d& x : w) {
+      const double r = x.norm();
+      reach = std::max(reach, r);
+      if (r > 0) sum += (x.dot(nf) < 0 ? -1.0 : 1.0) * x / r;
+    }
+    Eigen::Vector3d axis = sum.norm() > 1e-12 ? Eigen::Vector3d(sum.normalized()) : nf;
+    if (!(axis.norm() > 0.5)) axis = Eigen::Vector3d::UnitZ();
+    double along = 0.0, across = 0.0;  // max |w . axis|, max |w - (w . axis) axis|
+    for (const Eigen::Vector3d& x : w) {
+      const double a = axis.dot(x);
+      along = std::max(along, std::abs(a));
+      across = std::max(across, (x - a * axis).norm());
+    }
+    // Rounded outward so the bound stays a bound in float.
+    out.axis = axis.cast<float>();
+    out.along = static_cast<float>(along * (1 + 1e-6)) + std::numeric_limits<float>::denorm_min();
+    out.across = static_cast<float>(across * (1 + 1e-6)) + std::numeric_limits<float>::denorm_min();
+    out.reach = static_cast<float>(reach * (1 + 1e-6)) + std::numeric_limits<float>::denorm_min();
+  }
+  sm.ready = true;
+}
+
+}  // namespace hrt
