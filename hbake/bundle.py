@@ -51,7 +51,7 @@ __all__ = [
 # --------------------------------------------------------------------------- constants
 
 FORMAT_NAME = "hbundle"
-FORMAT_VERSION = "1.0"
+FORMAT_VERSION = "1.1"
 FORMAT_MAJOR = 1
 
 #: Fixed file names inside a bundle (the manifest's ``files.*.path`` may name others).

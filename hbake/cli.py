@@ -236,6 +236,17 @@ def print_summary(result: dict) -> None:
         e = q["reconstruction"][key]
         rows.append((label, f"mean {_len(e['mean'])}, p95 {_len(e['p95'])} "
                             f"({e['p95'] / texel:.2g} texel), max {_len(e['max'])}"))
+    u = q["reconstruction"].get("coarse_to_full_uncut")
+    if u is not None:
+        rows.append(("coarse->full, uncut", f"max {_len(u['max'])} ({u['max'] / texel:.2g} texel), "
+                                             f"{u['cut_samples']} of {u['samples'] + u['cut_samples']} "
+                                             f"samples in quads with a discontinuity"))
+    dc = m["atlas"].get("discontinuities")
+    if dc is not None:
+        rows.append(("discontinuities", f"{dc['cut']:,} cut edges (> {dc['rule_texels']:g} texels); "
+                                        f"{dc['off_before']} -> {dc['off_after']} chords off the surface "
+                                        f"by > {dc['repair_threshold_texels']:g} texel, "
+                                        f"{dc['texels_moved']} texels re-chosen"))
     ms = m["mass"]
     rows.append(("mass (unit density)", f"{ms['basis']}: volume {ms['volume']:.4g} m^3, "
                                         f"COM [{', '.join(f'{c:.4g}' for c in ms['center_of_mass'])}]"))

@@ -119,6 +119,29 @@ INSIDE_EPS = 1e-9
 #: coarse mesh put border texels at the block's far corner, 36 mm away).
 BORDER_STRETCH_TEXELS = 2.0
 BORDER_RAY_TEXELS = 4.0
+#: Two 4-neighbour texels whose points are more than this many texel sizes apart are a
+#: discontinuity: no bilinear lookup interpolates across them (the runtime does not use a
+#: 2x2 quad with such an edge). Why 4: the full surface's step per texel is sqrt(1 + s^2)
+#: times the coarse one for a slope s, 3.9 at 75 degrees.
+DISCONTINUITY_TEXELS = 4.0
+#: The bake moves texels (hbake/atlas.py, repair_jumps) whose edge midpoints to uncut
+#: neighbours lie farther than this many texel sizes off the full surface. Why half a
+#: texel: a lookup where the relief is resolved strays by at most about half a texel step
+#: (the atlas samples once per texel, Sec. 7.2); a chord farther off is a jump, not relief.
+JUMP_REPAIR_TEXELS = 0.5
+#: The choice of wall (hit along +normal or -normal) is made for the texels within
+#: JUMP_LABEL_RINGS texels of an off edge by a minimum cut: an off edge between a +hit and
+#: a -hit costs JUMP_LABEL_EDGE, a texel's hit costs JUMP_LABEL_UNARY per texel size that
+#: it lies farther than the nearer one (a tie-break: a wall switch may move up to about
+#: EDGE / (UNARY * gap) rows to where the walls are within a texel or farther apart than
+#: the cut length).
+JUMP_LABEL_RINGS = 12
+JUMP_LABEL_EDGE = 1000
+JUMP_LABEL_UNARY = 10.0
+#: Rounds of the repair (each moves both checkerboard colours once), and the least
+#: improvement (texel sizes) of a texel's worst offset for a move to be kept.
+JUMP_REPAIR_ITERATIONS = 16
+JUMP_REPAIR_GAIN_TEXELS = 1e-3
 #: UV triangles with twice their area below this (texels^2) are skipped by the bake.
 UV_DEGENERATE_TEXELS2 = 1e-9
 #: Rays are traced in chunks of this many texels (bounded memory, progress updates).

@@ -114,6 +114,48 @@ def closest_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray):
     return closest, np.linalg.norm(closest - points, axis=1)
 
 
+class ClosestPointQuery:
+    """``closest_points`` against one mesh for many small batches of points: the MeshSet
+    with the mesh is built once (building it is most of the cost of a small query).
+    Same MeshLab filter and bound, so the same answers."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        import pymeshlab
+
+        self._pymeshlab = pymeshlab
+        self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+        self.lo, self.hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
+        self.ms = pymeshlab.MeshSet()
+        self.ms.add_mesh(pymeshlab.Mesh(vertex_matrix=self.vertices,
+                                        face_matrix=np.ascontiguousarray(faces, dtype=np.int32)))
+        self.source = self.ms.current_mesh_id()
+
+    def __call__(self, points: np.ndarray):
+        """(closest (n, 3), distance (n,))."""
+        pml = self._pymeshlab
+        points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        if len(points) == 0:
+            return np.zeros((0, 3)), np.zeros(0)
+        lo = np.minimum(self.lo, points.min(axis=0))
+        hi = np.maximum(self.hi, points.max(axis=0))
+        bound = 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
+        self.ms.add_mesh(pml.Mesh(vertex_matrix=points))
+        target = self.ms.current_mesh_id()
+        try:
+            self.ms.transfer_attributes_per_vertex(sourcemesh=self.source, targetmesh=target,
+                                                   geomtransfer=True, colortransfer=False,
+                                                   normaltransfer=False, qualitytransfer=False,
+                                                   selectiontransfer=False, qualitydistance=False,
+                                                   upperbound=pml.PureValue(bound))
+            closest = np.asarray(self.ms.mesh(target).vertex_matrix(), dtype=np.float64)
+        finally:
+            self.ms.set_current_mesh(target)
+            self.ms.delete_current_mesh()
+        if closest.shape != points.shape:
+            raise RuntimeError("closest-point transfer changed the number of points")
+        return closest, np.linalg.norm(closest - points, axis=1)
+
+
 def signed_distances(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Signed distance of ``points`` to a triangle mesh: positive on the side its face
     normals point to (outside, for an outward mesh). MeshLab's distance filter: the sign

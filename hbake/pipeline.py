@@ -252,6 +252,7 @@ def assemble_manifest(settings, full, coarse, param, baked, pieces, mass, qualit
                   "gutter": int(baked.gutter), "gutter_setting": int(settings.atlas.gutter),
                   "texel_size": float(baked.texel_size),
                   "coverage": float(baked.coverage), "charts": int(param.charts),
+                  "discontinuities": dict(baked.jumps),
                   "packed_width": int(param.packed_width),
                   "packed_height": int(param.packed_height)},
         "mass": mass.to_manifest(),

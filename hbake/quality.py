@@ -6,6 +6,9 @@
   - ``coarse_to_full``: points of the coarse surface mapped through the atlas (the
     bilinear lookup of the spec, ``hbake.bundle.atlas_lookup``, i.e. what the runtime
     computes, Eq. 8) against the full-resolution surface;
+  - ``coarse_to_full_uncut`` (format 1.1): the same samples without those whose lookup
+    quad has an edge longer than DISCONTINUITY_TEXELS texel sizes (a discontinuity, which
+    the runtime does not interpolate across; ``cut_samples`` counts them);
   - ``full_to_coarse``: points of the full surface against the reconstructed surface,
     the image of the coarse surface under the atlas. That surface is triangulated from
     the texel grid: every 2x2 block of baked texels of one chart gives two triangles
@@ -45,14 +48,40 @@ def error_stats(d: np.ndarray, diag: float) -> dict:
 
 
 def coarse_to_full(coarse_vertices, coarse_faces, uvs, image, full_vertices, full_faces,
-                   samples: int, rng: np.random.Generator) -> np.ndarray:
-    """Distances of atlas-mapped coarse-surface samples to the full surface."""
+                   samples: int, rng: np.random.Generator, texel_size: float | None = None):
+    """Distances of atlas-mapped coarse-surface samples to the full surface; with
+    ``texel_size``, also the mask of the samples whose lookup quad has a cut edge
+    (``lookup_cut``)."""
     from hbake.bundle import atlas_lookup
 
     _, face, bary = sample_surface(coarse_vertices, coarse_faces, samples, rng)
     uv = np.einsum("nk,nkd->nd", bary, np.asarray(uvs, dtype=np.float64)[face])
     mapped = atlas_lookup(image, uv)[:, :3]
-    return closest_points(full_vertices, full_faces, mapped)[1]
+    d = closest_points(full_vertices, full_faces, mapped)[1]
+    if texel_size is None:
+        return d
+    return d, lookup_cut(image, uv, texel_size)
+
+
+def lookup_cut(image: np.ndarray, uv: np.ndarray, texel_size: float) -> np.ndarray:
+    """True where the 2x2 quad that the bilinear lookup at ``uv`` reads has an edge whose
+    two texels are more than DISCONTINUITY_TEXELS texel sizes apart: a discontinuity, which
+    the runtime does not interpolate across (docs/bundle-format.md, atlas.discontinuities)."""
+    from hbake.bundle import texel_coords
+
+    h, w = image.shape[:2]
+    xy = texel_coords(uv, w, h)
+    i0 = np.floor(xy[:, 0]).astype(np.int64)
+    j0 = np.floor(xy[:, 1]).astype(np.int64)
+    i1, j1 = np.clip(i0 + 1, 0, w - 1), np.clip(j0 + 1, 0, h - 1)
+    i0, j0 = np.clip(i0, 0, w - 1), np.clip(j0, 0, h - 1)
+    p = image[..., :3].astype(np.float64)
+    limit = C.DISCONTINUITY_TEXELS * texel_size
+    cut = np.zeros(len(uv), dtype=bool)
+    for (ja, ia), (jb, ib) in (((j0, i0), (j0, i1)), ((j1, i0), (j1, i1)),
+                               ((j0, i0), (j1, i0)), ((j0, i1), (j1, i1))):
+        cut |= np.linalg.norm(p[ja, ia] - p[jb, ib], axis=1) > limit
+    return cut
 
 
 def reconstructed_mesh(image: np.ndarray, triangle: np.ndarray, baked: np.ndarray,
@@ -118,8 +147,8 @@ def measure(*, full_vertices, full_faces, coarse_vertices,
     # Independent, reproducible streams for the two directions.
     rng_c, rng_f = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
 
-    d_cf = coarse_to_full(coarse_vertices, coarse_faces, uvs, baked.image, full_vertices,
-                          full_faces, samples, rng_c)
+    d_cf, cut_cf = coarse_to_full(coarse_vertices, coarse_faces, uvs, baked.image, full_vertices,
+                                  full_faces, samples, rng_c, baked.texel_size)
     if progress:
         progress(1)
     charts = chart_labels(coarse_faces, np.asarray(uvs))
@@ -160,7 +189,13 @@ def measure(*, full_vertices, full_faces, coarse_vertices,
         "hull_deviation": dev,
         "hull_volume_excess": float(excess),
         "min_wavelength": float(min_wavelength),
-        "reconstruction": {"coarse_to_full": cf_stats, "full_to_coarse": fc},
+        "reconstruction": {
+            "coarse_to_full": cf_stats, "full_to_coarse": fc,
+            # the same samples less those whose lookup quad has a cut edge (what the
+            # runtime interpolates); format 1.1
+            "coarse_to_full_uncut": {**(error_stats(d_cf[~cut_cf], diag) if (~cut_cf).any()
+                                        else {k: 0.0 for k in cf_stats} | {"samples": 0}),
+                                     "cut_samples": int(cut_cf.sum())}},
         "bbox_diagonal": diag,
     }
     return quality, warnings

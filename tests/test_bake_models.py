@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
 
 import numpy as np
 import pytest
@@ -507,8 +508,10 @@ def shared_bundles(tmp_path_factory):
     def get(name):
         src = SHARED_DIR / name
         if not src.is_file():
-            pytest.skip(f"shared model {name} not found in {SHARED_DIR} "
-                        f"(the read-only third-party meshes live at ../shared/models)")
+            # With CI=true a missing ../shared is a failure, not a skip (issue 8).
+            (pytest.fail if os.environ.get("CI") else pytest.skip)(
+                f"shared model {name} not found in {SHARED_DIR} "
+                f"(the read-only third-party meshes live at ../shared/models)")
         if name not in cache:
             out = root / (Path(name).stem + ".hbundle")
             cache[name] = (out, _bake(src, out, {"load.units": SHARED_MODELS[name],
@@ -544,3 +547,129 @@ def test_bake_shared(name, shared_bundles):
         assert m["mass"]["basis"] == "full"
     if name == "planetary_gears.stl":
         assert m["source"]["bodies"] == 7
+
+
+# --------------------------------------------------------------------------
+# Outliers (issue 8, cause 5): every reconstructed point a lookup can read is on the surface
+# --------------------------------------------------------------------------
+
+#: Two 4-neighbour texels farther apart than this many texel sizes are a discontinuity
+#: (docs/bundle-format.md, "Discontinuities"): no lookup interpolates across them.
+RULE_TEXELS = 4.0
+#: Bound on the off-surface distance (closest point on the full mesh) of every covered
+#: texel's value and of the midpoint of every uncut edge to a 4-neighbour, in texel sizes.
+#: Why 1 texel (issue 8, fixed before measuring): texel values are ray hits or closest
+#: points, on the surface up to float32 rounding; a chord between neighbours on the
+#: surface strays from it by its sag, a small fraction of a texel where the relief is
+#: resolved (wavelengths of two texels and more, Sec. 7.2), and by up to half its length
+#: (2 texels under the rule) only where it spans a jump: a thin part, a gap between two
+#: bodies, a wall switch of the rays. One texel is what the runtime's grid resolves, so a
+#: point farther off is an outlier that a window's maximum (delta) would feel.
+OUTLIER_TEXELS = 1.0
+#: Open borders are left out: items (texel values, midpoints) within this many texel sizes
+#: of a boundary edge of the full mesh. Why 2 (half the rule's length): past an open border
+#: the rays find no surface and the texels take the closest point, on the border curve,
+#: which neighbours reach at points up to the rule's length apart; the midpoint of such an
+#: uncut edge lies within half of it, 2 texels, of the border, and nothing farther is
+#: left out.
+OPEN_BORDER_MARGIN_TEXELS = 2.0
+
+
+def _boundary_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float) -> np.ndarray:
+    """Points every ``spacing`` (or closer) along the boundary edges (edges of one face)."""
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    u, c = np.unique(e, axis=0, return_counts=True)
+    b = u[c == 1]
+    if len(b) == 0:
+        return np.zeros((0, 3))
+    a, d = vertices[b[:, 0]], vertices[b[:, 1]]
+    k = np.maximum(1, np.ceil(np.linalg.norm(d - a, axis=1) / spacing)).astype(np.int64)
+    owner = np.repeat(np.arange(len(b)), k + 1)
+    t = np.concatenate([np.arange(n + 1) / n for n in k])
+    return a[owner] + t[:, None] * (d[owner] - a[owner])
+
+
+def reconstruction_offsets(bundle, full_vertices, full_faces):
+    """Off-surface distances (m) of what a lookup can read, per item: every covered
+    texel's value, and the midpoint of every edge from a covered texel to a 4-neighbour
+    (all baked: a 4-neighbour of a covered texel lies within a texel of its UV triangle)
+    that the rule does not cut. Returns (points, distances, description of each item).
+
+    Distances are exact closest-point distances (hbake.geometry.closest_points) for the
+    texels; a midpoint is within d(p) + |p - q| / 2 of the surface (triangle inequality),
+    so only the midpoints where that bound passes OUTLIER_TEXELS are queried; the others
+    carry the bound, which is below the test's limit."""
+    from hbake.geometry import closest_points
+
+    tx = bundle.manifest["atlas"]["texel_size"]
+    img = bundle.atlas.astype(np.float64)
+    P, cov = img[..., :3], img[..., 3] == 1
+    H, W = cov.shape
+    ys, xs = np.nonzero(cov)
+    d_tex = closest_points(full_vertices, full_faces, P[ys, xs])[1]
+    dist = np.full((H, W), np.nan)
+    dist[ys, xs] = d_tex
+    pts, ds, what = [P[ys, xs]], [d_tex], [np.stack([ys, xs, ys, xs], axis=1)]
+    for dy, dx in ((0, 1), (1, 0), (0, -1), (-1, 0)):
+        y2, x2 = ys + dy, xs + dx
+        ok = (y2 >= 0) & (y2 < H) & (x2 >= 0) & (x2 < W)
+        if (dy, dx) in ((0, -1), (-1, 0)):                 # covered pairs once
+            ok[ok] &= ~cov[y2[ok], x2[ok]]
+        y1, x1, y2, x2 = ys[ok], xs[ok], y2[ok], x2[ok]
+        length = np.linalg.norm(P[y1, x1] - P[y2, x2], axis=1)
+        keep = length <= RULE_TEXELS * tx
+        y1, x1, y2, x2, length = y1[keep], x1[keep], y2[keep], x2[keep], length[keep]
+        mid = 0.5 * (P[y1, x1] + P[y2, x2])
+        d = dist[y1, x1] + 0.5 * length
+        query = np.nonzero(d > OUTLIER_TEXELS * tx)[0]
+        if len(query):
+            d[query] = closest_points(full_vertices, full_faces, mid[query])[1]
+        pts.append(mid)
+        ds.append(d)
+        what.append(np.stack([y1, x1, y2, x2], axis=1))
+    return np.concatenate(pts), np.concatenate(ds), np.concatenate(what)
+
+
+@pytest.mark.parametrize("name", _params(SHARED_MODELS, KNOWN_SHARED))
+def test_atlas_outliers(name, shared_bundles):
+    """Issue 8, "Outliers": the off-surface distance of every covered texel's value and of
+    every uncut edge midpoint (what a runtime lookup that follows the discontinuity rule
+    can read) is at most OUTLIER_TEXELS, away from open borders (OPEN_BORDER_MARGIN_TEXELS).
+    Reuses the bakes of test_bake_shared; the manifest records the bake's repair."""
+    from scipy.spatial import cKDTree
+
+    from hbake.load import load_mesh
+    from hbake.settings import LoadSettings
+
+    path, _ = shared_bundles(name)
+    b = read_bundle(path)
+    m = b.manifest
+    tx = m["atlas"]["texel_size"]
+    full = load_mesh(SHARED_DIR / name, LoadSettings(units=SHARED_MODELS[name]))
+    pts, d, what = reconstruction_offsets(b, full.vertices, full.faces)
+    border = _boundary_samples(full.vertices, full.faces, 0.25 * tx)
+    if len(border):
+        # sampled every quarter texel: a distance read off the samples exceeds the true one
+        # by at most an eighth of a texel, so no point nearer than the margin is missed
+        near = cKDTree(border).query(pts, distance_upper_bound=OPEN_BORDER_MARGIN_TEXELS * tx)[0]
+        judged = ~np.isfinite(near) | (near > OPEN_BORDER_MARGIN_TEXELS * tx)
+    else:
+        judged = np.ones(len(pts), dtype=bool)
+    assert judged.mean() > 0.9, f"{name}: the open-border margin leaves out {1 - judged.mean():.1%}"
+    off = d[judged] / tx
+    worst = int(np.argmax(off))
+    w = what[judged][worst]
+    bad = int(np.sum(off > OUTLIER_TEXELS))
+    assert bad == 0, (
+        f"{name}: {bad} of {len(off)} reconstructed points lie more than {OUTLIER_TEXELS} texel "
+        f"off the full surface; worst {off[worst]:.3f} texel ({off[worst] * tx * 1e6:.1f} um) at "
+        f"texel (row {w[0]}, col {w[1]}) -> (row {w[2]}, col {w[3]}), "
+        f"{np.round(pts[judged][worst] * 1e3, 3).tolist()} mm")
+    # The bake says what it did (format 1.1, docs/bundle-format.md).
+    assert m["format_version"] == "1.1"
+    disc = m["atlas"]["discontinuities"]
+    assert disc["rule_texels"] == RULE_TEXELS
+    assert disc["off_after"] <= disc["off_before"]
+    rec = m["quality"]["reconstruction"]["coarse_to_full_uncut"]
+    assert rec["samples"] + rec["cut_samples"] == m["quality"]["reconstruction"]["coarse_to_full"]["samples"]
+    assert rec["max"] <= m["quality"]["reconstruction"]["coarse_to_full"]["max"]
