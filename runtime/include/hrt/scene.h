@@ -18,7 +18,9 @@
 //      per piece pair the closest points (or the penetration points) and a
 //      normal from A into B (Sec. 6.1: "interpenetration is considered to
 //      occur when objects are closer than a distance tolerance").
-//   2. clustering: piece pairs -> contact patches (p_A, p_B, n, a continuous
+//   2. clustering: piece pairs -> contact patches (p_A, p_B, n = the mean of
+//      the pairs' normals weighted by depth (tol - d) / tol times overlap
+//      area, see src/contact/cluster.cpp; a continuous
 //      tangent basis u, v, the sampling window, the coarse triangles of A and
 //      B to rasterize).
 //   3. texture force: compute_patch_wrench (depth.h, Eq. 5-9) per patch, then
