@@ -284,7 +284,11 @@ static void check_pair(const Poly& A, const Poly& B, int trials, unsigned seed, 
       // The previous narrow phase, where it survives: FCL's EPA stops within
       // its tolerance (tol) of the true depth.
       double d_fcl = 0;
-      if (fcl_signed_distance(*ga->convex[0], b_from_a, *gb->convex[0], tol, d_fcl)) {
+      // Where FCL's GJK misses the intersection (a positive distance for
+      // pieces SAT proves overlapping; seen on the pebble's piece against
+      // itself) it is no reference: the runtime checks that answer's
+      // certificate (collision.cpp) and gets the depth above instead.
+      if (fcl_signed_distance(*ga->convex[0], b_from_a, *gb->convex[0], tol, d_fcl) && d_fcl <= 0) {
         ++fcl_compared;
         EXPECT_NEAR(d, d_fcl, 2 * tol) << label << " trial " << trial;
       }
@@ -344,8 +348,11 @@ TEST(NarrowPhase, AgreesWithSeparatingAxesOnBakedPieces) {
     std::vector<Poly> polys;
     for (const hrt::ConvexPiece& piece : m.pieces) polys.push_back(Poly{piece.vertices, piece.faces});
     ASSERT_GE(polys.size(), 1u) << name;
+    // At least 240 poses per bundle whatever its piece count (a re-bake can
+    // change it), so both regimes get enough samples.
+    const int trials = std::max(60, static_cast<int>((240 + polys.size() - 1) / polys.size()));
     for (size_t k = 0; k < polys.size(); ++k)  // a one-piece bundle: the piece against itself
-      check_pair(polys[k], polys[(k + 1) % polys.size()], 60, static_cast<unsigned>(11 + k),
+      check_pair(polys[k], polys[(k + 1) % polys.size()], trials, static_cast<unsigned>(11 + k),
                  std::string(name) + " pieces " + std::to_string(k) + "/" + std::to_string((k + 1) % polys.size()), c);
   }
   EXPECT_GT(c.overlapping, 50);

@@ -206,9 +206,10 @@ void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_fro
 // uncovered there stays uncovered (coverage is that of configuration 0),
 // and so does one whose iteration does not converge. seed_h and seeds have
 // `border` (as rasterize_heights_seeded wrote them); out is N x N.
-void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Vec3& n, const Vec3& u,
-                     const Vec3& v, const Window& w, bool keep_max, const double* seed_h, int border,
-                     const HeightSeeds& seeds, double* out);
+// seed_world_from_m is the placement the seeds were made at.
+void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Eigen::Isometry3d& seed_world_from_m,
+                     const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, bool keep_max,
+                     const double* seed_h, int border, const HeightSeeds& seeds, double* out);
 
 // Eq. 9 for one configuration of A: world_from_a is A's whole placement
 // (pose_a.iso(), possibly composed with a config_motion), world_from_b B's.

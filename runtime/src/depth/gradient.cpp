@@ -266,7 +266,7 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     for (int k = 1; k < count; ++k) {
       const int c = rendered[k];
       if (shift_m > 0 && c >= 1 && c <= 4) continue;
-      resolve_heights(A, T[k], n, u, v, patch.window, true, bufs[0], border, scratch.seeds, bufs[k]);
+      resolve_heights(A, T[k], T[0], n, u, v, patch.window, true, bufs[0], border, scratch.seeds, bufs[k]);
     }
   } else {
     rasterize_heights_multi(A, T, borders, count, ta, n, u, v, patch.window, true, bufs, opt.heights);

@@ -490,9 +490,9 @@ void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_fro
     if (f < M.faces.size()) raster_triangle(M, f, pl);
 }
 
-void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Vec3& n, const Vec3& u,
-                     const Vec3& v, const Window& w, bool keep_max, const double* seed_h, int border,
-                     const HeightSeeds& seeds, double* out) {
+void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Eigen::Isometry3d& seed_world_from_m,
+                     const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, bool keep_max,
+                     const double* seed_h, int border, const HeightSeeds& seeds, double* out) {
   const int N = w.resolution;
   const size_t n2 = static_cast<size_t>(std::max(N, 0)) * std::max(N, 0);
   const double none = keep_max ? -kInf : kInf;
@@ -502,14 +502,34 @@ void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, cons
   }
   const Placement pl = make_placement(M, world_from_m, n, u, v, w, 0, keep_max, out, HeightMode::surface);
   const double tol2 = pl.tol * pl.tol;
+  // The seed's point lies (within the tolerance) on texel (i, j)'s column at
+  // height seed_h: its world position is affine in (i, j, h), and so are its
+  // grid coordinates after the motion from the seed's placement to this one.
+  // So the first residual needs no lookup: r0 = (i, j) - G (i, j, h).
+  const Eigen::Isometry3d motion = world_from_m * seed_world_from_m.inverse(Eigen::Isometry);
+  const Mat3 Rm = motion.linear();
+  const double cell = w.cell;
+  // p(i, j, h) = origin + (i + 0.5) cell u + (j + 0.5) cell v + h n (heights relative to n . origin);
+  // x' = u . (motion p - origin) / cell - 0.5, likewise y'.
+  const Vec3 mo = motion * w.origin - w.origin;
+  const Vec3 Ru = Rm * u, Rv = Rm * v, Rn = Rm * n;
+  const double gxi = u.dot(Ru), gxj = u.dot(Rv), gxh = u.dot(Rn) / cell;
+  const double gyi = v.dot(Ru), gyj = v.dot(Rv), gyh = v.dot(Rn) / cell;
+  const double gx0 = u.dot(mo) / cell + 0.5 * (gxi + gxj) - 0.5, gy0 = v.dot(mo) / cell + 0.5 * (gyi + gyj) - 0.5;
   for (int j = 0; j < N; ++j)
     for (int i = 0; i < N; ++i) {
       const size_t k = static_cast<size_t>(j) * N + i;
       const size_t ks = static_cast<size_t>(j + border) * (N + 2 * border) + (i + border);  // in the bordered seeds
       out[k] = none;
-      if (!(std::abs(seed_h[ks]) < kInf)) continue;  // not covered at configuration 0
+      const double h0 = seed_h[ks];
+      if (!(std::abs(h0) < kInf)) continue;  // not covered at configuration 0
       double a_x = seeds.a[2 * ks], a_y = seeds.a[2 * ks + 1];
       const float* J = &seeds.j[4 * ks];
+      {
+        const double rx = i - (gx0 + gxi * i + gxj * j + gxh * h0), ry = j - (gy0 + gyi * i + gyj * j + gyh * h0);
+        a_x += J[0] * rx + J[1] * ry;
+        a_y += J[2] * rx + J[3] * ry;
+      }
       for (int it = 0; it < kMaxLateralIterations; ++it) {
         double px, py, ph;
         if (!pl.sample.project(a_x, a_y, pl.gx4, pl.gy4, px, py, ph)) break;
