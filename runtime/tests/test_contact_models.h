@@ -144,6 +144,7 @@ inline hrt::Model make_boxes(const std::vector<Box>& boxes, const std::string& n
   m.quality.hull_deviation = 0.0;
   m.quality.texel_size = (hi_all - lo_all).maxCoeff() / texels_per_strip;
   m.quality.min_wavelength = 0.0;  // no relief: never undersampled
+  hrt::prepare_surface_map(m);  // as load_bundle does
   return m;
 }
 

@@ -134,39 +134,53 @@ TEST(PatchSafety, GoldenContactsAreNeitherRefusedNorClamped) {
 // tol + delta0 (tol = the 1 mm margin; no relief): the patch is clamped to
 // it, its force is k (tol + delta0) up (the corrupted face is flat, so the
 // gradient stays (0, 0, 1, ...)), and the counter says so.
-TEST(PatchSafety, HeightsBeyondThePiecesAreClampedToTheBound) {
-  hrt::Model a = make_box(Vec3(-0.02, -0.01, -0.005), Vec3(0.02, 0.01, 0.005), "a");
-  // Strip 0 of the atlas is box 0's bottom (-z) face (test_contact_models.h).
-  const int strip = 32;
-  for (int j = 0; j < a.atlas.height; ++j)
-    for (int i = 0; i < strip; ++i) a.atlas.rgba[(static_cast<size_t>(j) * a.atlas.width + i) * 4 + 2] -= 5e-3f;
-  hrt::Model b = make_box(Vec3(-0.1, -0.1, -0.01), Vec3(0.1, 0.1, 0.0), "b");
-  SceneOptions o;
-  o.collision.margin = 1e-3;
-  Scene scene({&a, &b}, o);
-  State st(scene);
-  const double k = scene.options().force.stiffness;
-  const double delta0 = 0.2e-3;
-  st.poses[0] = pose_at(Vec3(0.003, 0.002, 0.005 - delta0));
-  hrt::frame(scene, st);
-  ASSERT_EQ(st.num_patches, 1);
-  const hrt::ContactPatch& p = st.patches[0];
-  ASSERT_TRUE(p.covered);
-  EXPECT_NEAR(p.delta, delta0 + 5e-3, 1e-6);  // what the corrupted heights say
-  const double bound = scene.tolerance(1) + delta0;
-  EXPECT_NEAR(p.delta_bound, bound, 1e-9);
-  EXPECT_TRUE(p.clamped);
-  EXPECT_FALSE(p.refused);
-  EXPECT_EQ(p.delta_force, p.delta_bound);
-  Vec3 f_expected, t_expected;
-  hrt::wrench_from_gradient(p, p.delta_bound, p.grad, k, f_expected, t_expected);
-  EXPECT_NEAR((p.force - f_expected).norm(), 0.0, 1e-12);
-  EXPECT_NEAR((p.torque - t_expected).norm(), 0.0, 1e-12);
-  EXPECT_NEAR((st.force - k * bound * Vec3::UnitZ()).norm(), 0.0, k * kPosTol + 1e-4 * k * bound);
-  EXPECT_EQ(st.warnings.clamped_patches, 1u);
-  EXPECT_EQ(st.warnings.refused_patches, 0u);
-  // Unclamped, the same frame pushed with k (delta0 + 5 mm): 26 times more.
-  EXPECT_LT(st.force.norm(), 0.25 * k * (delta0 + 5e-3));
+// Heights beyond what the pieces allow: between the bound and twice the own
+// pairs' bound they are clamped to the bound (the force of delta_bound);
+// beyond that they are not this contact's and the patch is refused
+// (frame.cpp, kRefuseFactor). The bound here is tol + delta0 = 1.2 mm (1 mm
+// margin): a 1.5 mm corruption (delta 1.7 mm) is clamped, a 5 mm one
+// (delta 5.2 mm) refused.
+TEST(PatchSafety, HeightsBeyondThePiecesAreClampedOrRefused) {
+  for (const float corrupt : {1.5e-3f, 5e-3f}) {
+    hrt::Model a = make_box(Vec3(-0.02, -0.01, -0.005), Vec3(0.02, 0.01, 0.005), "a");
+    // Strip 0 of the atlas is box 0's bottom (-z) face (test_contact_models.h).
+    const int strip = 32;
+    for (int j = 0; j < a.atlas.height; ++j)
+      for (int i = 0; i < strip; ++i) a.atlas.rgba[(static_cast<size_t>(j) * a.atlas.width + i) * 4 + 2] -= corrupt;
+    hrt::prepare_surface_map(a);
+    hrt::Model b = make_box(Vec3(-0.1, -0.1, -0.01), Vec3(0.1, 0.1, 0.0), "b");
+    SceneOptions o;
+    o.collision.margin = 1e-3;
+    Scene scene({&a, &b}, o);
+    State st(scene);
+    const double k = scene.options().force.stiffness;
+    const double delta0 = 0.2e-3;
+    st.poses[0] = pose_at(Vec3(0.003, 0.002, 0.005 - delta0));
+    hrt::frame(scene, st);
+    ASSERT_EQ(st.num_patches, 1);
+    const hrt::ContactPatch& p = st.patches[0];
+    ASSERT_TRUE(p.covered);
+    EXPECT_NEAR(p.delta, delta0 + corrupt, 1e-6);  // what the corrupted heights say
+    const double bound = scene.tolerance(1) + delta0;
+    EXPECT_NEAR(p.delta_bound, bound, 1e-9);
+    if (p.delta < 2 * bound) {
+      EXPECT_TRUE(p.clamped);
+      EXPECT_FALSE(p.refused);
+      EXPECT_EQ(p.delta_force, p.delta_bound);
+      Vec3 f_expected, t_expected;
+      hrt::wrench_from_gradient(p, p.delta_bound, p.grad, k, f_expected, t_expected);
+      EXPECT_NEAR((p.force - f_expected).norm(), 0.0, 1e-12);
+      EXPECT_NEAR((p.torque - t_expected).norm(), 0.0, 1e-12);
+      EXPECT_NEAR((st.force - k * bound * Vec3::UnitZ()).norm(), 0.0, k * kPosTol + 1e-4 * k * bound);
+      EXPECT_EQ(st.warnings.clamped_patches, 1u);
+      EXPECT_EQ(st.warnings.refused_patches, 0u);
+    } else {
+      EXPECT_TRUE(p.refused);
+      EXPECT_EQ(p.delta_force, 0.0);
+      EXPECT_EQ(st.force.norm(), 0.0);
+      EXPECT_EQ(st.warnings.refused_patches, 1u);
+    }
+  }
 }
 
 // A deeply interpenetrating pose of the golden ridged boxes (A's coarse

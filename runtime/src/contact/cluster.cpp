@@ -43,7 +43,7 @@
 //     for a new patch the axis of B's frame least aligned with n, projected;
 //     v = n x u, so {u, v, n} is right-handed;
 //   - triangles: tris_a = the coarse faces of the patch's A pieces (pieces'
-//     coarse_faces) whose outward normal has n . normal > kFacingCos (facing
+//     coarse_faces) whose outward normal has n . normal > kFacingCos = 0.5 (facing
 //     B), tris_b = those of the B pieces with n . normal < -kFacingCos, each
 //     side culled first against the other side's pieces (grown by the reach
 //     below), ascending;
@@ -81,13 +81,18 @@ namespace {
 using collision::ModelGeometry;
 
 // A face belongs to a patch's height field only when it faces the other
-// object within ~78 degrees of n (cos > 0.2). Steeper faces project to
+// object within 60 degrees of n (cos > 0.5). Steeper faces project to
 // slivers whose heights span the whole face: a wall next to a floor contact
 // would put the wall's top into the floor's height map and make delta jump
-// when a finite-difference step moves A over the sliver. Such faces belong to
-// the patch whose n they face (clustering splits normals more than 45
-// degrees apart).
-constexpr double kFacingCos = 0.2;
+// when a finite-difference step moves A over the sliver; and a patch whose n
+// is edge-on to the surfaces in contact (two textured plates face to face,
+// piece pairs whose separating axis is a cut face's horizontal normal) would
+// take the relief's flanks, tilted 68 degrees from such an n, and rasterize
+// faces millimetres apart (tests/test_fullsurface_depth.py, the gratings;
+// with cos > 0.2 they gave 165 N). Such faces belong to the patch whose n
+// they face (clustering splits normals more than 45 degrees apart, so every
+// face is within 45 + 15 degrees of some patch's n it belongs to).
+constexpr double kFacingCos = 0.5;
 // Ladder of texel sizes: 2^(1/4) steps.
 constexpr double kLadderStepsPerOctave = 4.0;
 

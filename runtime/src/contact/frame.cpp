@@ -86,6 +86,9 @@ double micros(Clock::time_point a, Clock::time_point b) {
 // The refusal carries a pair's overlap over to n with 1 / max(cos, 1/2): a
 // pair normal more than 60 degrees from n allows twice its overlap.
 constexpr double kJudgeCos = 0.5;
+// A patch whose delta exceeds this many times the bound of its own pairs is
+// refused (apply_patch_safety).
+constexpr double kRefuseFactor = 2.0;
 
 // Extents of a piece along a world direction: [lo, hi] of dir . x.
 struct Extent {
@@ -113,7 +116,7 @@ double pair_axis_overlap(const collision::ModelGeometry& ga, const Eigen::Isomet
 
 // Refusal and bound of patch k (see the header comment). st.pair_overlap
 // holds O_i of every pair.
-void check_patch(const Scene& scene, State& st, int k, bool& refused, double& bound) {
+void check_patch(const Scene& scene, State& st, int k, bool& refused, double& bound, double& bound_own) {
   const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
   const Vec3& n = patch.n;
   const int b = patch.object_b;
@@ -125,6 +128,7 @@ void check_patch(const Scene& scene, State& st, int k, bool& refused, double& bo
   const int count = st.patch_pair_count[static_cast<size_t>(k)];
   refused = false;
   bound = 0.0;
+  bound_own = 0.0;
   // The pieces that list the patch's triangles (marked with a fresh stamp).
   if (++st.safety_stamp == 0) {
     std::fill(st.safety_mark_a.begin(), st.safety_mark_a.end(), 0u);
@@ -157,6 +161,7 @@ void check_patch(const Scene& scene, State& st, int k, bool& refused, double& bo
     bound = std::max(bound, std::min(along_pair, tol + reach));
     // Refusal: only the patch's own pairs judge its n.
     if (!own) continue;
+    bound_own = std::max(bound_own, std::min(along_pair, tol + reach));
     // The overlap the pair allows along n: its own overlap carried over to
     // n, at most doubled (whether n is within 60 degrees of n_i or not).
     const double allowed = (tol + o) / std::max(c, kJudgeCos);
@@ -180,8 +185,17 @@ void compute_pair_overlaps(const Scene& scene, State& st) {
 void apply_patch_safety(const Scene& scene, State& st, int k) {
   ContactPatch& patch = st.patches[static_cast<size_t>(k)];
   bool refused = false;
-  double bound = 0.0;
-  check_patch(scene, st, k, refused, bound);
+  double bound = 0.0, bound_own = 0.0;
+  check_patch(scene, st, k, refused, bound, bound_own);
+  // Heights far beyond what the patch's own piece pairs allow along n do not
+  // belong to this contact: a patch whose n is edge-on to the surfaces in
+  // contact (pieces of two plates face to face whose separating axis is a cut
+  // face's normal, horizontal) rasterizes faces far apart along n (12.7 mm
+  // where the pairs overlap by 0.3 mm: the gratings of
+  // tests/test_fullsurface_depth.py, 165 N before this rule). Twice the own
+  // pairs' bound leaves room for the triangles of a legitimate patch that
+  // reach into other pieces' pairs (the clamp below handles those).
+  if (patch.covered && std::isfinite(patch.delta) && patch.delta > kRefuseFactor * bound_own) refused = true;
   if (!std::isfinite(patch.delta) || !patch.grad.allFinite() || !patch.force.allFinite() ||
       !patch.torque.allFinite() || !std::isfinite(bound))
     refused = true;
