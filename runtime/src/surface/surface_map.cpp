@@ -1,4 +1,4 @@
-// prepare_surface_map (hrt/surface.h): per-face lateral-offset cones and the
+// prepare_surface_map (hrt/surface.h): per-face lateral-offset bounds and the
 // per-quad usability mask of the atlas.
 #include <algorithm>
 #include <cmath>
@@ -105,6 +105,14 @@ void prepare_surface_map(Model& model) {
   // --- faces -----------------------------------------------------------------
   const size_t F = model.faces.size();
   sm.faces.assign(F, SurfaceMap::Face{});
+  // Work bound: texel centres examined, at most this many per atlas texel
+  // plus per face, the loader's bound on its own atlas checks
+  // (docs/input-contract.md). A valid atlas's UV triangles do not overlap, so
+  // their boxes cover it about twice; a bundle loaded without the invariant
+  // checks may have slivers across the whole atlas: beyond the bound the map
+  // is not made (ready stays false) and the model's heights are Eq. 8's.
+  const uint64_t budget = 16ull * static_cast<uint64_t>(W) * static_cast<uint64_t>(H) + 64ull * F;
+  uint64_t work = 0;
   std::vector<Eigen::Vector3d> w;  // offsets of one face (reused)
   for (size_t f = 0; f < F; ++f) {
     const Tri& tri = model.faces[f];
@@ -121,10 +129,18 @@ void prepare_surface_map(Model& model) {
       // Edge lengths, for the signed distances of a texel centre to the edges.
       const double len[3] = {std::hypot(ax[2] - ax[1], ay[2] - ay[1]), std::hypot(ax[0] - ax[2], ay[0] - ay[2]),
                              std::hypot(ax[1] - ax[0], ay[1] - ay[0])};
-      const int i0 = std::max(0, static_cast<int>(std::floor(std::min({ax[0], ax[1], ax[2]}) - kReadMargin)));
-      const int i1 = std::min(W - 1, static_cast<int>(std::ceil(std::max({ax[0], ax[1], ax[2]}) + kReadMargin)));
-      const int j0 = std::max(0, static_cast<int>(std::floor(std::min({ay[0], ay[1], ay[2]}) - kReadMargin)));
-      const int j1 = std::min(H - 1, static_cast<int>(std::ceil(std::max({ay[0], ay[1], ay[2]}) + kReadMargin)));
+      // Clamped in double before the conversion (a bundle loaded without the
+      // invariant checks may carry any UV).
+      auto to_index = [](double x, int hi) {
+        if (!(x >= 0)) return 0;  // also NaN
+        return x <= hi ? static_cast<int>(x) : hi;
+      };
+      const int i0 = to_index(std::floor(std::min({ax[0], ax[1], ax[2]}) - kReadMargin), W - 1);
+      const int i1 = to_index(std::ceil(std::max({ax[0], ax[1], ax[2]}) + kReadMargin), W - 1);
+      const int j0 = to_index(std::floor(std::min({ay[0], ay[1], ay[2]}) - kReadMargin), H - 1);
+      const int j1 = to_index(std::ceil(std::max({ay[0], ay[1], ay[2]}) + kReadMargin), H - 1);
+      if (i0 <= i1 && j0 <= j1) work += static_cast<uint64_t>(i1 - i0 + 1) * static_cast<uint64_t>(j1 - j0 + 1);
+      if (work > budget) return;  // ready stays false
       const Eigen::Vector3d &P0 = model.vertices[tri[0]], &P1 = model.vertices[tri[1]], &P2 = model.vertices[tri[2]];
       for (int j = j0; j <= j1; ++j)
         for (int i = i0; i <= i1; ++i) {
@@ -144,7 +160,7 @@ void prepare_surface_map(Model& model) {
     SurfaceMap::Face& out = sm.faces[f];
     if (w.empty()) continue;  // no texel read: the face has no lateral offset to correct
     // The lateral offset of w and of -w are the same, and the relief goes
-    // both ways (in and out of the coarse surface): the cone is around the
+    // both ways (in and out of the coarse surface): the bound is about the
     // *line* of the axis. Axis: the mean of the offset directions, each
     // flipped to the side of the face normal.
     const Eigen::Vector3d& nf = model.face_normals[f];
