@@ -126,9 +126,6 @@ void prepare_surface_map(Model& model) {
     const double area2 = e1x * e2y - e2x * e1y;
     w.clear();
     if (std::abs(area2) > 1e-12) {
-      // Edge lengths, for the signed distances of a texel centre to the edges.
-      const double len[3] = {std::hypot(ax[2] - ax[1], ay[2] - ay[1]), std::hypot(ax[0] - ax[2], ay[0] - ay[2]),
-                             std::hypot(ax[1] - ax[0], ay[1] - ay[0])};
       // Clamped in double before the conversion (a bundle loaded without the
       // invariant checks may carry any UV).
       auto to_index = [](double x, int hi) {
@@ -147,13 +144,32 @@ void prepare_surface_map(Model& model) {
           // Barycentrics of the texel centre (i, j) in the UV triangle.
           const double dx = i - ax[0], dy = j - ay[0];
           const double b1 = (dx * e2y - e2x * dy) / area2, b2 = (e1x * dy - dx * e1y) / area2, b0 = 1 - b1 - b2;
-          // Distance outside each edge, in texels (b_k * 2 area / |edge k|).
-          const double b[3] = {b0, b1, b2};
-          bool near = true;
-          for (int k = 0; k < 3; ++k) near = near && b[k] * std::abs(area2) / len[k] >= -kReadMargin;
-          if (!near) continue;
+          // The texel counts when its centre lies within kReadMargin of the
+          // UV triangle (Euclidean; the tips of a needle triangle reach no
+          // farther). q: the face point at the closest point of the UV
+          // triangle (the point a lookup that reads this texel is near), not
+          // the extrapolated one, which for a needle lies metres away.
+          double c[3] = {b0, b1, b2};
+          if (b0 < 0 || b1 < 0 || b2 < 0) {
+            double best = std::numeric_limits<double>::infinity();
+            for (int k = 0; k < 3; ++k) {  // segment from corner k to corner k+1
+              const int l = (k + 1) % 3;
+              const double sx = ax[l] - ax[k], sy = ay[l] - ay[k];
+              const double ss = sx * sx + sy * sy;
+              const double t = ss > 0 ? std::clamp(((i - ax[k]) * sx + (j - ay[k]) * sy) / ss, 0.0, 1.0) : 0.0;
+              const double ddx = i - (ax[k] + t * sx), ddy = j - (ay[k] + t * sy);
+              const double d2 = ddx * ddx + ddy * ddy;
+              if (d2 < best) {
+                best = d2;
+                c[0] = c[1] = c[2] = 0.0;
+                c[k] = 1.0 - t;
+                c[l] = t;
+              }
+            }
+            if (best > kReadMargin * kReadMargin) continue;
+          }
           const float* p = at.texel(i, j);
-          const Eigen::Vector3d q = b0 * P0 + b1 * P1 + b2 * P2;
+          const Eigen::Vector3d q = c[0] * P0 + c[1] * P1 + c[2] * P2;
           w.push_back(Eigen::Vector3d(p[0], p[1], p[2]) - q);
         }
     }
