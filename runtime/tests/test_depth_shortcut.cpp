@@ -257,7 +257,9 @@ TEST(DepthShortcut, RasterizerSamplesLikeAtlasSample) {
   ContactPatch p = synth::make_patch(Vec3(0.3, 0.2, -1), Vec3::UnitX(), Vec3(1e-3, -2e-3, 0), 2e-4, N, {}, B.face_tris);
   const Pose pb = synth::make_pose(Vec3(0, 0, 0), Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Vec3(1, 2, 3).normalized())));
   std::vector<double> h(static_cast<size_t>(N) * N);
-  rasterize_heights(B.model, pb.iso(), B.face_tris, p.n, p.u, p.v, p.window, 0, false, h.data());
+  // The literal Eq. 8 (the noise above makes the atlas jump between texels,
+  // which the surface mode would rightly refuse to interpolate across).
+  rasterize_heights(B.model, pb.iso(), B.face_tris, p.n, p.u, p.v, p.window, 0, false, h.data(), HeightMode::coarse);
   // Reference: for each texel centre, find the face triangle under it (ray
   // along n in the object frame) and interpolate its UVs barycentrically.
   const Eigen::Isometry3d T = pb.iso();
