@@ -869,11 +869,17 @@ def readme_figure(runs: list[SceneRun]) -> str:
     """The README's line: the depth error against the full meshes over all scenes."""
     s = summarize("all", runs)
     groups = sorted({r.scene.group for r in runs}, key=lambda g: GROUPS.index(g) if g in GROUPS else 9)
+    # Kept patches where hrt has no depth (uncovered) but the full meshes have columns
+    # crossing both: not in the median, reported with their own worst.
+    probs = [p for r in runs for p in r.patches if p.kept and p.problem and not refused(p) and not p.wrong_way]
+    worst_prob = max((abs(p.err_texels) for p in probs if math.isfinite(p.err_texels)), default=0.0)
+    extra = (f"; plus {len(probs)} coverage problems (hrt uncovered or phantom where the full meshes "
+             f"say otherwise, worst {worst_prob:.2f} texel)" if probs else "")
     return (f"depth error against the full-resolution meshes, {' + '.join(groups)}, N = "
             f"{' and '.join(map(str, RESOLUTIONS))}: median {s['median_abs_texels']:.3f} atlas texel, worst "
             f"{s['worst_abs_texels']:.3f} texel ({s['worst_abs_mm']:.4f} mm) over {s['kept'] - s['problems']} "
             f"patches compared ({100 * s['kept_fraction']:.0f} % of {s['candidates']} kept), "
-            f"{s['outside_bound']} outside their bound; command: {README_COMMAND}")
+            f"{s['outside_bound']} outside their bound{extra}; command: {README_COMMAND}")
 
 
 # ----------------------------------------------------------------------------
