@@ -559,6 +559,14 @@ def evaluate_patch(scene: str, N: int, c: dict, a: Model, b: Model, pose_a, pose
     res.slab_columns = len(idx)
     res.slope, res.dslope = tuple(slopes), tuple(dslopes)
     res.bound = patch_bound(cell, (a, b), slopes, dslopes)
+    if both.any() and any(r >= len(idx) for r in rims):
+        # Every column that matters is a rim column of one surface (steeper than
+        # STEEP, or a layer step, along n): that surface has no height field along
+        # this n, so s and ds, and with them the bound, are undefined. Left out
+        # (counted against MAX_LEFT_OUT), decided from the rays before comparing.
+        res.kept = False
+        res.reason = f"no height field along n: all {len(idx)} columns near contact are rim columns of a surface"
+        return res
     if not both.any():
         res.delta_truth = -math.inf
         if c["covered"]:

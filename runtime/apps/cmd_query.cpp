@@ -81,7 +81,8 @@ Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOption
                         {"delta_bound", c.delta_bound},
                         {"delta_force", c.delta_force},
                         {"clamped", c.clamped},
-                        {"refused", c.refused}});
+                        {"refused", c.refused},
+                        {"facing", c.facing}});
   }
   json wrench_b = json::array();
   for (int b = 1; b < scene.size(); ++b)

@@ -76,8 +76,15 @@ struct ContactPatch {
   //   clamped:     delta > delta_bound: the force is that of delta_bound
   //                (same gradient).
   //   refused:     n disagrees with the pieces' geometry (some pair's A piece
-  //                lies mostly beyond its B piece along n), or the force
-  //                model returned a non-finite value: no force at all.
+  //                lies mostly beyond its B piece along n; or no face of A's
+  //                pieces near B faces n within 60 degrees, or none of B's
+  //                faces -n: n is edge-on to the surfaces, see `facing`), delta
+  //                exceeds twice what the patch's own pairs allow, or the
+  //                force model returned a non-finite value: no force at all.
+  //   facing:      clustering found faces of A's pieces facing n and of B's
+  //                facing -n, near and within reach of the other side's;
+  //                false: n is edge-on to the surfaces, or they cannot meet
+  //                along it (no triangles, so no force either way).
   //   delta_force: the depth the force was computed from: min(delta,
   //                delta_bound), 0 when refused or uncovered.
   // delta, grad above stay the force model's own values (Eq. 7, 9).
@@ -85,6 +92,7 @@ struct ContactPatch {
   double delta_force = 0.0;
   bool clamped = false;
   bool refused = false;
+  bool facing = true;
 };
 
 }  // namespace hrt

@@ -542,6 +542,9 @@ void cluster_pairs(const Scene& scene, State& st) {
       collect_faces(A, ga, world_from_a.linear(), n, st.piece_list_a, na, region_a_c, region_a_h, st.face_mark_a, stamp,
                     patch.tris_a);
       collect_faces(B, gb, rb, -n, st.piece_list_b, nb, region_b_c, region_b_h, st.face_mark_b, stamp, patch.tris_b);
+      // No face of one side faces the other along n: n is edge-on to the
+      // surfaces in contact (frame.cpp refuses the patch).
+      patch.facing = !patch.tris_a.empty() && !patch.tris_b.empty();
     }
 
     // Window: (u, v) bounds, relative to the lattice anchor t_B, of the parts
@@ -657,6 +660,9 @@ void cluster_pairs(const Scene& scene, State& st) {
         if (!outside(box_b + 4 * k)) patch.tris_b[w++] = patch.tris_b[k];
       patch.tris_b.resize(w);
     }
+    // Nothing left on one side within reach of the other along n: no height
+    // field of this contact exists along n either.
+    patch.facing = patch.facing && !patch.tris_a.empty() && !patch.tris_b.empty();
 
     // Results are filled by the force stage.
     patch.delta = 0.0;

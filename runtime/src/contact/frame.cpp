@@ -196,6 +196,12 @@ void apply_patch_safety(const Scene& scene, State& st, int k) {
   // pairs' bound leaves room for the triangles of a legitimate patch that
   // reach into other pieces' pairs (the clamp below handles those).
   if (patch.covered && std::isfinite(patch.delta) && patch.delta > kRefuseFactor * bound_own) refused = true;
+  // No face of A's pieces faces n (or of B's faces -n) within 60 degrees: n
+  // is edge-on to the surfaces, and no height field along it is this
+  // contact's (cluster.cpp sets `facing`). Such a patch has no triangles and
+  // so no force either way; refusing says why (the gratings' side pairs,
+  // whose separating axes are cut-face normals 70-90 degrees off the plates').
+  if (!patch.facing) refused = true;
   if (!std::isfinite(patch.delta) || !patch.grad.allFinite() || !patch.force.allFinite() ||
       !patch.torque.allFinite() || !std::isfinite(bound))
     refused = true;
