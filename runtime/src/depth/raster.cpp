@@ -157,7 +157,7 @@ struct Placement {
   // Jacobian of the triangle it came from.
   double* seed_a = nullptr;
   float* seed_j = nullptr;
-  float gx4[4], gy4[4];  // gx, gy as float4 for HeightSampler::project
+  float gx4[4] = {}, gy4[4] = {};  // gx, gy as float4 for HeightSampler::project
 };
 
 Placement make_placement(const Model& M, const Eigen::Isometry3d& world_from_m, const Vec3& n, const Vec3& u,
