@@ -2,7 +2,7 @@
 
 Bakes the scenes of tests/test_fullsurface_depth.py (angled gratings pressed together at
 six offsets, a bumpy sphere on a textured plate, three ../shared/models -- rocker arm,
-fandisk, hammer scan -- on a textured plate and a plain box), runs `hrt query --json` at
+fandisk, Stanford bunny -- on a textured plate and a plain box), runs `hrt query --json` at
 N = 50 and 128 and prints, per group and over all scenes, the patches compared, the
 kept fraction and the median and worst |delta_hrt - delta_full| in atlas texels (the
 larger texel of the pair), with the worst bound; the last line is the README's figure

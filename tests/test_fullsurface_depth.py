@@ -9,7 +9,7 @@ computed from the full meshes before anything is compared):
     coarse mesh follows part of the relief, pressed together at six offsets across
     the ridges, the nested one included;
 (b) a bumpy sphere on a textured plate (a gentler 40 mm grating) at seeded random orientations;
-(c) three of ../shared/models (rocker arm, fandisk, hammer scan; decimated to 30k
+(c) three of ../shared/models (rocker arm, fandisk, Stanford bunny; decimated to 30k
     triangles, scaled to a 25 mm diagonal) pressed 0.1-0.2 mm on the textured plate and
     on a plain box at seeded random orientations and on a thin part (a tip extremal
     along its own normal, thinner than 8 % of the diagonal).
