@@ -95,24 +95,6 @@ struct HeightSampler {
 #endif
     return true;
   }
-  // The object-space point (bilinear RGB, clamped lookup) at atlas
-  // coordinates (ax, ay); false in an unusable quad.
-  inline bool point(double ax, double ay, double* P) const {
-    if (!(ax > -1e6 && ax < 1e6 && ay > -1e6 && ay < 1e6)) return false;  // also NaN
-    const double fx0 = std::floor(ax), fy0 = std::floor(ay);
-    const double fx = ax - fx0, fy = ay - fy0;
-    const int i0 = static_cast<int>(fx0), j0 = static_cast<int>(fy0);
-    const int ia = std::clamp(i0, 0, w - 1), ib = std::clamp(i0 + 1, 0, w - 1);
-    const int ja = std::clamp(j0, 0, h - 1), jb = std::clamp(j0 + 1, 0, h - 1);
-    if (ok && !ok[static_cast<size_t>(ja) * w + ia]) return false;
-    const float *a = rgba + ja * stride + ia * 4, *b = rgba + ja * stride + ib * 4;
-    const float *c = rgba + jb * stride + ia * 4, *d = rgba + jb * stride + ib * 4;
-    for (int k = 0; k < 3; ++k) {
-      const double top = a[k] + fx * (b[k] - a[k]), bot = c[k] + fx * (d[k] - c[k]);
-      P[k] = top + fy * (bot - top);
-    }
-    return true;
-  }
   inline double lerp_dot(const float* a, const float* b, const float* c, const float* d, float fx, float fy) const {
 #if defined(__SSE4_1__)
     const __m128 va = _mm_loadu_ps(a), vb = _mm_loadu_ps(b), vc = _mm_loadu_ps(c), vd = _mm_loadu_ps(d);
