@@ -981,3 +981,36 @@ def path_query(hrt: str, a: Model, b: Model, pose_a, pose_b, offsets, N: int = 5
             per[k].append(c)
         out += per
     return out
+
+
+# ----------------------------------------------------------------------------
+# Session setup shared by the test files (test_fullsurface_depth, test_depth_*)
+# ----------------------------------------------------------------------------
+
+CI = bool(os.environ.get("CI"))
+
+
+def require_shared():
+    """A missing ../shared/models fails under CI (it must run the shared-model scenes)
+    and skips the calling test elsewhere."""
+    import pytest
+
+    missing = [n for n in SHARED if not (SHARED_MODELS / n).is_file()]
+    if missing:
+        msg = f"../shared/models is missing {missing} ({SHARED_MODELS})"
+        if CI:
+            pytest.fail(msg + ": CI must run the shared-model scenes")
+        pytest.skip(msg)
+
+
+def session_models(tmp_path_factory) -> dict:
+    """Every bundle the scenes use, baked once per session and shared by the test files
+    (FULLSURFACE_CACHE keeps them between sessions). Under CI a missing ../shared fails."""
+    if CI:
+        require_shared()
+    root = Path(os.environ.get("FULLSURFACE_CACHE") or tmp_path_factory.getbasetemp() / "fullsurface")
+    fresh = not _MODELS
+    out = load_models(root)
+    if fresh:
+        print("\nbakes: " + ", ".join(f"{n} {m.bake_s:.1f} s (texel {m.texel * 1e6:.1f} um)" for n, m in out.items()))
+    return out

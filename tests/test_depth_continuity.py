@@ -20,9 +20,7 @@ of RMS of F . n over the frames with delta > 0.1 of the relief amplitude, at N =
 from __future__ import annotations
 
 import math
-import os
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,7 +28,6 @@ import pytest
 import fullsurface as FS
 from hrt_locate import hrt_binary
 
-CI = bool(os.environ.get("CI"))
 
 #: Step of a path, in A's atlas texels (issue 8).
 STEP_TEXELS = 1e-3
@@ -72,16 +69,9 @@ FIG7_MIN_DELTA = 0.1 * FS.GRATING_A
 FIG7_N = 50
 
 
-def _need_shared():
-    if CI and not FS.shared_present():
-        pytest.fail(f"../shared/models is missing ({FS.SHARED_MODELS}): CI must run the shared-model scenes")
-
-
 @pytest.fixture(scope="session")
 def models(tmp_path_factory):
-    _need_shared()
-    root = Path(os.environ.get("FULLSURFACE_CACHE") or tmp_path_factory.getbasetemp() / "fullsurface")
-    return FS.load_models(root)
+    return FS.session_models(tmp_path_factory)
 
 
 @pytest.fixture(scope="session")

@@ -12,24 +12,17 @@ the constructed case: its side pieces give patches whose n runs through both blo
 """
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 import fullsurface as FS
 from hrt_locate import hrt_binary
 
-CI = bool(os.environ.get("CI"))
 
 
 @pytest.fixture(scope="session")
 def models(tmp_path_factory):
-    if CI and not FS.shared_present():
-        pytest.fail(f"../shared/models is missing ({FS.SHARED_MODELS}): CI must run the shared-model scenes")
-    root = Path(os.environ.get("FULLSURFACE_CACHE") or tmp_path_factory.getbasetemp() / "fullsurface")
-    return FS.load_models(root)
+    return FS.session_models(tmp_path_factory)
 
 
 @pytest.fixture(scope="session")

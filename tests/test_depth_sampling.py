@@ -9,32 +9,18 @@ test keeps (its keep rule and bound, from the full meshes). With CI set, a missi
 from __future__ import annotations
 
 import math
-import os
 import time
-from pathlib import Path
 
 import pytest
 
 import fullsurface as FS
 from hrt_locate import hrt_binary
 
-CI = bool(os.environ.get("CI"))
-
-
-def _need_shared():
-    if not FS.shared_present():
-        msg = f"../shared/models lacks {FS.SHARED} ({FS.SHARED_MODELS})"
-        if CI:
-            pytest.fail(msg + ": CI must run the shared-model scenes")
-        pytest.skip(msg)
 
 
 @pytest.fixture(scope="session")
 def models(tmp_path_factory):
-    if CI:
-        _need_shared()
-    root = Path(os.environ.get("FULLSURFACE_CACHE") or tmp_path_factory.getbasetemp() / "fullsurface")
-    return FS.load_models(root)
+    return FS.session_models(tmp_path_factory)
 
 
 @pytest.fixture(scope="session")
@@ -62,7 +48,7 @@ def test_depth_against_continuous_truth(group, hrt, models):
     surfaces' largest slopes along n over the window, the harness's s) per unit of
     lateral distance. Both are fixed from the full meshes before comparing."""
     if group == "models":
-        _need_shared()
+        FS.require_shared()
     runs = _runs(hrt, models, group)
     if group == "models":
         runs = [r for r in runs if r.scene.a == SAMPLING_MODEL]

@@ -29,9 +29,7 @@ the key covers the mesh, the settings and hbake's sources).
 from __future__ import annotations
 
 import math
-import os
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -39,30 +37,12 @@ import pytest
 import fullsurface as FS
 from hrt_locate import hrt_binary
 
-CI = bool(os.environ.get("CI"))
-
-
-def _need_shared():
-    missing = [n for n in FS.SHARED if not (FS.SHARED_MODELS / n).is_file()]
-    if missing:
-        msg = f"../shared/models is missing {missing} ({FS.SHARED_MODELS})"
-        if CI:
-            pytest.fail(msg + ": CI must run the shared-model scenes")
-        pytest.skip(msg)
+CI = FS.CI
 
 
 @pytest.fixture(scope="session")
 def models(tmp_path_factory):
-    """Every bundle the scenes use, baked once per session (shared with the other
-    test_depth_* files through fullsurface's cache)."""
-    if CI:
-        _need_shared()
-    root = Path(os.environ.get("FULLSURFACE_CACHE") or tmp_path_factory.getbasetemp() / "fullsurface")
-    fresh = not FS._MODELS
-    out = FS.load_models(root)
-    if fresh:
-        print("\nbakes: " + ", ".join(f"{n} {m.bake_s:.1f} s (texel {m.texel * 1e6:.1f} um)" for n, m in out.items()))
-    return out
+    return FS.session_models(tmp_path_factory)
 
 
 @pytest.fixture(scope="session")
@@ -164,9 +144,8 @@ def test_grating_truth_matches_closed_form(hrt, models):
 @pytest.mark.parametrize("group,smooth", [("gratings", True), ("sphere", True), ("models", False)])
 def test_depth_within_bound(group, smooth, hrt, models):
     if group == "models":
-        _need_shared()
+        FS.require_shared()
     _check(group, _runs(hrt, models, group), smooth)
-
 
 
 def test_readme_figure(hrt, models):
@@ -175,7 +154,7 @@ def test_readme_figure(hrt, models):
     prints it. It asserts only that every group ran."""
     groups = ["gratings", "sphere"] + (["models"] if FS.shared_present() or CI else [])
     if "models" in groups:
-        _need_shared()
+        FS.require_shared()
     runs = [r for g in groups for r in _runs(hrt, models, g)]
     for N in FS.RESOLUTIONS:
         print(FS.format_summary(FS.summarize(f"all scenes N={N}", [r for r in runs if r.N == N])))
