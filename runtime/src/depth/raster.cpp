@@ -29,6 +29,32 @@ constexpr double kMinArea2 = 1e-12;
 // the image. Equal to n_obj . Atlas::sample(u, v) (tested), inlined because
 // it runs once per covered texel per configuration. Positions are
 // interpolated as float4 (the atlas is float32) and dotted with n once.
+// The bilinear interpolation of four float4 texels (a b / c d, weights fx
+// along x, fy along y), the one formula every lookup below uses.
+struct Bilerp {
+#if defined(__SSE4_1__)
+  __m128 v;
+  Bilerp(const float* a, const float* b, const float* c, const float* d, float fx, float fy) {
+    const __m128 va = _mm_loadu_ps(a), vb = _mm_loadu_ps(b), vc = _mm_loadu_ps(c), vd = _mm_loadu_ps(d);
+    const __m128 vfx = _mm_set1_ps(fx), vfy = _mm_set1_ps(fy);
+    const __m128 top = _mm_add_ps(va, _mm_mul_ps(vfx, _mm_sub_ps(vb, va)));
+    const __m128 bot = _mm_add_ps(vc, _mm_mul_ps(vfx, _mm_sub_ps(vd, vc)));
+    v = _mm_add_ps(top, _mm_mul_ps(vfy, _mm_sub_ps(bot, top)));
+  }
+  // dot with the first three components of w4 (its fourth is ignored).
+  float dot(const float* w4) const { return _mm_cvtss_f32(_mm_dp_ps(v, _mm_loadu_ps(w4), 0x71)); }
+#else
+  float p[3];
+  Bilerp(const float* a, const float* b, const float* c, const float* d, float fx, float fy) {
+    for (int k = 0; k < 3; ++k) {
+      const float top = a[k] + fx * (b[k] - a[k]), bot = c[k] + fx * (d[k] - c[k]);
+      p[k] = top + fy * (bot - top);
+    }
+  }
+  float dot(const float* w4) const { return w4[0] * p[0] + w4[1] * p[1] + w4[2] * p[2]; }
+#endif
+};
+
 struct HeightSampler {
   const float* rgba;
   int w, h;
@@ -39,16 +65,24 @@ struct HeightSampler {
   // which the max / min of the callers ignore (std::max(a, NaN) == a).
   const uint8_t* ok;
 
-  // Clamped lookup, valid anywhere.
-  inline double clamped(double ax, double ay) const {
+  // The clamped 2 x 2 footprint of (ax, ay): false in an unusable quad.
+  inline bool footprint(double ax, double ay, const float** q, float& fx, float& fy) const {
     const double fx0 = std::floor(ax), fy0 = std::floor(ay);
-    const float fx = static_cast<float>(ax - fx0), fy = static_cast<float>(ay - fy0);
+    fx = static_cast<float>(ax - fx0), fy = static_cast<float>(ay - fy0);
     const int i0 = static_cast<int>(fx0), j0 = static_cast<int>(fy0);
     const int ia = std::clamp(i0, 0, w - 1), ib = std::clamp(i0 + 1, 0, w - 1);
     const int ja = std::clamp(j0, 0, h - 1), jb = std::clamp(j0 + 1, 0, h - 1);
-    if (ok && !ok[static_cast<size_t>(ja) * w + ia]) return std::numeric_limits<double>::quiet_NaN();
-    return lerp_dot(rgba + ja * stride + ia * 4, rgba + ja * stride + ib * 4, rgba + jb * stride + ia * 4,
-                    rgba + jb * stride + ib * 4, fx, fy);
+    if (ok && !ok[static_cast<size_t>(ja) * w + ia]) return false;
+    q[0] = rgba + ja * stride + ia * 4, q[1] = rgba + ja * stride + ib * 4;
+    q[2] = rgba + jb * stride + ia * 4, q[3] = rgba + jb * stride + ib * 4;
+    return true;
+  }
+  // Clamped lookup, valid anywhere.
+  inline double clamped(double ax, double ay) const {
+    const float* q[4];
+    float fx, fy;
+    if (!footprint(ax, ay, q, fx, fy)) return std::numeric_limits<double>::quiet_NaN();
+    return Bilerp(q[0], q[1], q[2], q[3], fx, fy).dot(n);
   }
   // Lookup whose 2 x 2 footprint is known to lie inside the image
   // (0 <= ax < w - 1, 0 <= ay < h - 1): no clamping.
@@ -57,7 +91,7 @@ struct HeightSampler {
     const float fx = static_cast<float>(ax - i0), fy = static_cast<float>(ay - j0);
     if (ok && !ok[static_cast<size_t>(j0) * w + i0]) return std::numeric_limits<double>::quiet_NaN();
     const float* p = rgba + j0 * stride + i0 * 4;
-    return lerp_dot(p, p + 4, p + stride, p + stride + 4, fx, fy);
+    return Bilerp(p, p + 4, p + stride, p + stride + 4, fx, fy).dot(n);
   }
   // The bilinear point at atlas coordinates (ax, ay) (clamped lookup) dotted
   // with gx, gy (float4, object frame, 0 last) and with n: its grid
@@ -67,50 +101,14 @@ struct HeightSampler {
   inline bool project(double ax, double ay, const float* gx4, const float* gy4, double& px, double& py,
                       double& ph) const {
     if (!(ax > -1e6 && ax < 1e6 && ay > -1e6 && ay < 1e6)) return false;  // also NaN
-    const double fx0 = std::floor(ax), fy0 = std::floor(ay);
-    const float fx = static_cast<float>(ax - fx0), fy = static_cast<float>(ay - fy0);
-    const int i0 = static_cast<int>(fx0), j0 = static_cast<int>(fy0);
-    const int ia = std::clamp(i0, 0, w - 1), ib = std::clamp(i0 + 1, 0, w - 1);
-    const int ja = std::clamp(j0, 0, h - 1), jb = std::clamp(j0 + 1, 0, h - 1);
-    if (ok && !ok[static_cast<size_t>(ja) * w + ia]) return false;
-    const float *a = rgba + ja * stride + ia * 4, *b = rgba + ja * stride + ib * 4;
-    const float *c = rgba + jb * stride + ia * 4, *d = rgba + jb * stride + ib * 4;
-#if defined(__SSE4_1__)
-    const __m128 va = _mm_loadu_ps(a), vb = _mm_loadu_ps(b), vc = _mm_loadu_ps(c), vd = _mm_loadu_ps(d);
-    const __m128 vfx = _mm_set1_ps(fx), vfy = _mm_set1_ps(fy);
-    const __m128 top = _mm_add_ps(va, _mm_mul_ps(vfx, _mm_sub_ps(vb, va)));
-    const __m128 bot = _mm_add_ps(vc, _mm_mul_ps(vfx, _mm_sub_ps(vd, vc)));
-    const __m128 v = _mm_add_ps(top, _mm_mul_ps(vfy, _mm_sub_ps(bot, top)));
-    px = _mm_cvtss_f32(_mm_dp_ps(v, _mm_loadu_ps(gx4), 0x71));
-    py = _mm_cvtss_f32(_mm_dp_ps(v, _mm_loadu_ps(gy4), 0x71));
-    ph = _mm_cvtss_f32(_mm_dp_ps(v, _mm_loadu_ps(n), 0x71));
-#else
-    float rx = 0, ry = 0, rh = 0;
-    for (int k = 0; k < 3; ++k) {
-      const float top = a[k] + fx * (b[k] - a[k]), bot = c[k] + fx * (d[k] - c[k]);
-      const float p = top + fy * (bot - top);
-      rx += gx4[k] * p, ry += gy4[k] * p, rh += n[k] * p;
-    }
-    px = rx, py = ry, ph = rh;
-#endif
+    const float* q[4];
+    float fx, fy;
+    if (!footprint(ax, ay, q, fx, fy)) return false;
+    const Bilerp b(q[0], q[1], q[2], q[3], fx, fy);
+    px = b.dot(gx4);
+    py = b.dot(gy4);
+    ph = b.dot(n);
     return true;
-  }
-  inline double lerp_dot(const float* a, const float* b, const float* c, const float* d, float fx, float fy) const {
-#if defined(__SSE4_1__)
-    const __m128 va = _mm_loadu_ps(a), vb = _mm_loadu_ps(b), vc = _mm_loadu_ps(c), vd = _mm_loadu_ps(d);
-    const __m128 vfx = _mm_set1_ps(fx), vfy = _mm_set1_ps(fy);
-    const __m128 top = _mm_add_ps(va, _mm_mul_ps(vfx, _mm_sub_ps(vb, va)));
-    const __m128 bot = _mm_add_ps(vc, _mm_mul_ps(vfx, _mm_sub_ps(vd, vc)));
-    const __m128 v = _mm_add_ps(top, _mm_mul_ps(vfy, _mm_sub_ps(bot, top)));
-    return static_cast<double>(_mm_cvtss_f32(_mm_dp_ps(v, _mm_loadu_ps(n), 0x71)));
-#else
-    float r = 0;
-    for (int k = 0; k < 3; ++k) {
-      const float top = a[k] + fx * (b[k] - a[k]), bot = c[k] + fx * (d[k] - c[k]);
-      r += n[k] * (top + fy * (bot - top));
-    }
-    return static_cast<double>(r);
-#endif
   }
 };
 
