@@ -48,8 +48,8 @@ Vec6 resultant_about(const Vec3& p, const Vec3& fa, const Vec3& ta, const Vec3& 
 }  // namespace
 
 TEST(Frame, FlatOverlapGivesStiffnessTimesDepth) {
-  hrt::Model a = make_box(Vec3(-0.02, -0.01, -0.005), Vec3(0.02, 0.01, 0.005), "a");
-  hrt::Model b = make_box(Vec3(-0.1, -0.1, -0.01), Vec3(0.1, 0.1, 0.0), "b");
+  hrt::Model a = hrt_test::probe_box();
+  hrt::Model b = hrt_test::plate_box();
   SceneOptions o;
   o.collision.margin = 1e-3;
   Scene scene({&a, &b}, o);
@@ -98,8 +98,8 @@ TEST(Frame, FlatOverlapGivesStiffnessTimesDepth) {
 // Inside the tolerance but not touching: a patch, delta < 0, no force
 // (U = k max(delta, 0)^2 / 2).
 TEST(Frame, GapInsideToleranceGivesNoForce) {
-  hrt::Model a = make_box(Vec3(-0.02, -0.01, -0.005), Vec3(0.02, 0.01, 0.005), "a");
-  hrt::Model b = make_box(Vec3(-0.1, -0.1, -0.01), Vec3(0.1, 0.1, 0.0), "b");
+  hrt::Model a = hrt_test::probe_box();
+  hrt::Model b = hrt_test::plate_box();
   SceneOptions o;
   o.collision.margin = 1e-3;
   Scene scene({&a, &b}, o);

@@ -152,6 +152,12 @@ inline hrt::Model make_box(const Vec3& lo, const Vec3& hi, const std::string& na
   return make_boxes({Box{lo, hi}}, name);
 }
 
+// The flat pair of the frame, safety and dynamics tests: a 40 x 20 x 10 mm
+// probe box centred on its origin (its bottom at z = -5 mm) and a
+// 200 x 200 x 10 mm plate whose top face is z = 0.
+inline hrt::Model probe_box() { return make_box(Vec3(-0.02, -0.01, -0.005), Vec3(0.02, 0.01, 0.005), "a"); }
+inline hrt::Model plate_box() { return make_box(Vec3(-0.1, -0.1, -0.01), Vec3(0.1, 0.1, 0.0), "b"); }
+
 inline hrt::Pose pose_at(const Vec3& t, const Eigen::Quaterniond& q = Eigen::Quaterniond::Identity()) {
   hrt::Pose p;
   p.position = t;

@@ -76,8 +76,8 @@ TEST(Dynamics, CouplingStepResponseMatchesTheClosedForm) {
 // k_c (offset - delta) = k delta, while symplectic Euler on the same 1-D
 // model diverges (shown alongside, so the stiffness is really beyond it).
 TEST(Dynamics, StiffContactStaysStableAtTenTimesTheSymplecticLimit) {
-  hrt::Model a = make_box(Vec3(-0.02, -0.01, -0.005), Vec3(0.02, 0.01, 0.005), "a");
-  hrt::Model b = make_box(Vec3(-0.1, -0.1, -0.01), Vec3(0.1, 0.1, 0.0), "b");
+  hrt::Model a = hrt_test::probe_box();
+  hrt::Model b = hrt_test::plate_box();
   // The translational mode alone (the criterion's): the box's rotations are
   // frozen by a large inertia. (delta is the deepest point of the patch, so a
   // flat box on a plane rocks on its edges: that mode is the coupling's and

@@ -52,8 +52,8 @@ void expect_ordinary(const State& st, const hrt::Warnings& before, const std::st
 // geometric bound, with tol = the 1 mm margin: no relief) and delta is far
 // below it.
 TEST(PatchSafety, FlatContactsAreNeitherRefusedNorClamped) {
-  hrt::Model a = make_box(Vec3(-0.02, -0.01, -0.005), Vec3(0.02, 0.01, 0.005), "a");
-  hrt::Model b = make_box(Vec3(-0.1, -0.1, -0.01), Vec3(0.1, 0.1, 0.0), "b");
+  hrt::Model a = hrt_test::probe_box();
+  hrt::Model b = hrt_test::plate_box();
   SceneOptions o;
   o.collision.margin = 1e-3;
   Scene scene({&a, &b}, o);
@@ -142,13 +142,13 @@ TEST(PatchSafety, GoldenContactsAreNeitherRefusedNorClamped) {
 // (delta 5.2 mm) refused.
 TEST(PatchSafety, HeightsBeyondThePiecesAreClampedOrRefused) {
   for (const float corrupt : {1.5e-3f, 5e-3f}) {
-    hrt::Model a = make_box(Vec3(-0.02, -0.01, -0.005), Vec3(0.02, 0.01, 0.005), "a");
+    hrt::Model a = hrt_test::probe_box();
     // Strip 0 of the atlas is box 0's bottom (-z) face (test_contact_models.h).
     const int strip = 32;
     for (int j = 0; j < a.atlas.height; ++j)
       for (int i = 0; i < strip; ++i) a.atlas.rgba[(static_cast<size_t>(j) * a.atlas.width + i) * 4 + 2] -= corrupt;
     hrt::prepare_surface_map(a);
-    hrt::Model b = make_box(Vec3(-0.1, -0.1, -0.01), Vec3(0.1, 0.1, 0.0), "b");
+    hrt::Model b = hrt_test::plate_box();
     SceneOptions o;
     o.collision.margin = 1e-3;
     Scene scene({&a, &b}, o);
@@ -222,8 +222,8 @@ TEST(PatchSafety, DeepInterpenetrationGivesABoundedFiniteForce) {
 // patch is refused, gives no force, and the counter says so. The same patch
 // with its own n is accepted.
 TEST(PatchSafety, WrongWayNormalIsRefused) {
-  hrt::Model a = make_box(Vec3(-0.02, -0.01, -0.005), Vec3(0.02, 0.01, 0.005), "a");
-  hrt::Model b = make_box(Vec3(-0.1, -0.1, -0.01), Vec3(0.1, 0.1, 0.0), "b");
+  hrt::Model a = hrt_test::probe_box();
+  hrt::Model b = hrt_test::plate_box();
   SceneOptions o;
   o.collision.margin = 1e-3;
   Scene scene({&a, &b}, o);
