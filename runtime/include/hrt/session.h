@@ -1,0 +1,139 @@
+// A haptic session (issue 9): the probe A as a rigid body (hrt/dynamics.h)
+// driven by the contact wrench of hrt::frame, friction and a virtual
+// coupling to the device's target pose; objects B static or kinematic
+// (following trajectories). One step() is one simulation frame.
+//
+// A Session owns the Scene's dynamic State, the probe's BodyState and the
+// per-patch friction and fade tables, all preallocated: step() allocates
+// nothing of its own (FCL's narrow phase does, see hrt/scene.h).
+//
+// One step(t, h, target):
+//   1. poses: A from the body state, each B from its trajectory at t;
+//   2. frame(): contact patches and their texture wrenches (Eq. 5-9);
+//   3. materials: each patch's wrench scaled to its pair's stiffness k
+//      (the force model is linear in k); a patch the safety checks refused
+//      fades out over fade_time from its last accepted wrench instead of
+//      stepping to zero;
+//   4. friction (Coulomb, static and dynamic): per patch a tangential spring
+//      between two anchors, one fixed on A and one on B, made where the patch
+//      began; its force is k_t times their separation in the tangent plane of
+//      n, applied at A's anchor; when it exceeds mu_s F_n the patch slips: the
+//      B anchor is dragged so the force is mu_d F_n along the separation; a
+//      slipping patch sticks again once the spring force falls below mu_d F_n
+//      (F_n = the patch's normal force, -F . n). Stiff and stable at haptic
+//      rates because the spring enters the implicit step's stiffness;
+//   5. the implicit step (step_body) with K = contact stiffness (k of each
+//      pair) + friction springs (sticking patches) + coupling;
+//   6. the device command: W0 = the coupling spring's reaction on the
+//      device, K_eff = K_c - K_c (K_c + K)^-1 K_c (capped at the device's
+//      stiffness), for DeviceLoop's multirate model.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "hrt/device_loop.h"
+#include "hrt/dynamics.h"
+#include "hrt/scene.h"
+#include "hrt/trajectory.h"
+
+namespace hrt {
+
+// Contact material of a pair (A, B), or the scene's default.
+struct Material {
+  double stiffness = 0.0;             // k, N/m; 0: the scene's force.stiffness
+  double mu_static = 0.0;             // Coulomb coefficients (mu_dynamic <= mu_static)
+  double mu_dynamic = 0.0;
+  double tangential_stiffness = 0.0;  // k_t of the friction spring, N/m; 0: equal to k
+};
+
+struct SessionOptions {
+  double density = 1000.0;        // kg/m^3 of the probe (mass properties scale with it)
+  Vec3 gravity = Vec3::Zero();    // m/s^2; off by default: a haptic probe is held
+  Coupling coupling;              // gains (N/m, N s/m, N m/rad, N m s/rad); see default_coupling
+  bool coupling_enabled = true;   // false: a free body (tests, the tilted-plate experiment)
+  // Friction: off by default. Sec. 6's roughness experiments (Fig. 7, 8) are
+  // frictionless, and a stick-slip anchor needs a material the user chose
+  // (mu); with it on, textures stop feeling like ice.
+  bool friction = false;
+  Material material;                // default for every pair
+  std::vector<Material> materials;  // per object b (index = object; [0] unused); empty: the default
+  double fade_time = 0.02;          // s: a refused patch's wrench fades to zero over this time
+  // Caps of the device-side stiffness K_eff (the device's limits).
+  double max_device_stiffness = 2000.0;          // N/m
+  double max_device_angular_stiffness = 5.0;     // N m/rad
+};
+
+// Coupling gains from a device's limits: k_lin = its max_stiffness, k_ang =
+// its max_angular_stiffness, dampers critically damping the probe (mass m,
+// the largest principal inertia I): b = 2 sqrt(k m) (capped so that
+// h b / m stays below 1 at 1 kHz).
+Coupling default_coupling(const DeviceInfo& device, const RigidBody& probe);
+
+// What one step did (all world/scene frame; energies in J).
+struct SessionFrame {
+  double t = 0.0, h = 0.0;
+  uint64_t frame = 0;
+  Pose target;                      // coupling target (probe object frame)
+  Pose probe;                       // probe pose after the step
+  Vec6 contact = Vec6::Zero();      // texture contact wrench on A (after materials and fades), torque about c_A
+  Vec6 friction = Vec6::Zero();     // friction wrench on A
+  Vec6 coupling = Vec6::Zero();     // coupling wrench on A (after the step)
+  Vec6 device = Vec6::Zero();       // W0 of the device command (scene frame)
+  int patches = 0, sticking = 0, slipping = 0, refused = 0, fading = 0;
+  double kinetic = 0.0, coupling_energy = 0.0, contact_energy = 0.0, gravity_energy = 0.0;
+  double friction_energy = 0.0;     // stored in the friction springs
+  StageTimings timings;             // of frame()
+  double dynamics_us = 0.0;         // materials, friction, step, command
+};
+
+class Session {
+ public:
+  // `scene` must outlive the session. initial[b] are the objects' poses at
+  // t = 0 (size = scene.size()); the probe starts at rest at initial[0].
+  Session(const Scene& scene, const SessionOptions& options, const std::vector<Pose>& initial);
+
+  // Object b (>= 1) follows `trajectory` (kept by pointer; nullptr: static
+  // at its initial pose).
+  void set_trajectory(int b, const Trajectory* trajectory);
+
+  // One frame of length h (s) ending at session time t, towards `target`.
+  const SessionFrame& step(double t, double h, const Pose& target);
+  // The device command of the last step (DeviceLoop::publish).
+  const DeviceCommand& command() const { return command_; }
+  const SessionFrame& last() const { return last_; }
+
+  const Scene& scene() const { return scene_; }
+  const State& state() const { return state_; }
+  const RigidBody& body() const { return body_; }
+  const BodyState& body_state() const { return body_state_; }
+  BodyState& body_state() { return body_state_; }
+  const SessionOptions& options() const { return options_; }
+
+ private:
+  struct PatchMemory {       // per tracked patch id, in A's and B's frames
+    uint64_t id = 0;
+    int object_b = -1;
+    bool active = false, friction = false, slipping = false;
+    Vec3 anchor_a = Vec3::Zero(), anchor_b = Vec3::Zero();  // object frames
+    Vec6 last_wrench = Vec6::Zero();  // last accepted texture wrench (world, about c_A)
+    double fade = 0.0;                // 1 = live, decreasing while refused
+    uint64_t seen = 0;                // frame it was last seen
+  };
+  const Material& material(int b) const;
+  PatchMemory* memory_for(uint64_t id, int b);
+
+  const Scene& scene_;
+  SessionOptions options_;
+  State state_;
+  RigidBody body_;
+  BodyState body_state_;
+  std::vector<Pose> initial_;
+  std::vector<const Trajectory*> trajectories_;
+  std::vector<PatchMemory> memory_;  // capacity 2 x max_patches
+  SessionFrame last_;
+  DeviceCommand command_;
+  uint64_t frames_ = 0;
+};
+
+}  // namespace hrt
