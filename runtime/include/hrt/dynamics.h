@@ -58,7 +58,9 @@ struct BodyState {
 // Spring-damper between the device pose (target) and the probe's pose, in
 // N/m, N s/m, N m/rad, N m s/rad. Both poses are of the probe's object frame;
 // the spring acts at the centre of mass (translation) and on the rotation
-// vector of q_target q^-1 (rotation).
+// vector of q_target q^-1 (rotation); the damper on the velocity of the
+// probe relative to the target's (Adams and Hannaford: a probe following a
+// hand at constant speed feels no drag from the damper).
 struct Coupling {
   double k_lin = 0, b_lin = 0, k_ang = 0, b_ang = 0;
 };
@@ -68,12 +70,14 @@ struct StepInput {
   Vec6 contact = Vec6::Zero();     // contact wrench on A (force, torque about its centre of mass), world
   Mat6 contact_stiffness = Mat6::Zero();  // d(contact wrench)/d(x, rotation), negative semi-definite
   Pose target;                     // device pose mapped into the scene (object frame of A)
+  Vec6 target_velocity = Vec6::Zero();  // its linear velocity (of the point at A's centre of mass) and angular velocity, world
   Vec3 gravity = Vec3::Zero();     // m/s^2 (default off: a haptic probe is held)
 };
 
 // The coupling wrench on the body at state s towards `target` (world, torque
 // about the centre of mass).
-Vec6 coupling_wrench(const RigidBody& body, const Coupling& c, const BodyState& s, const Pose& target);
+Vec6 coupling_wrench(const RigidBody& body, const Coupling& c, const BodyState& s, const Pose& target,
+                     const Vec6& target_velocity = Vec6::Zero());
 
 // -k sum over the covered patches with delta > 0 of g g^T, g = the gradient
 // of delta in world twist coordinates (translation, rotation about A's centre

@@ -24,8 +24,9 @@
 //      rates because the spring enters the implicit step's stiffness;
 //   5. the implicit step (step_body) with K = contact stiffness (k of each
 //      pair) + friction springs (sticking patches) + coupling;
-//   6. the device command: W0 = the coupling spring's reaction on the
-//      device, K_eff = K_c - K_c (K_c + K)^-1 K_c (capped at the device's
+//   6. the device command: W0 = the coupling's reaction on the device
+//      (its spring, and its damper on the velocity relative to the target's,
+//      the finite difference of consecutive targets), K_eff = K_c - K_c (K_c + K)^-1 K_c (capped at the device's
 //      stiffness), for DeviceLoop's multirate model.
 #pragma once
 
@@ -134,6 +135,8 @@ class Session {
   SessionFrame last_;
   DeviceCommand command_;
   uint64_t frames_ = 0;
+  Pose prev_target_;
+  bool have_prev_target_ = false;
 };
 
 }  // namespace hrt

@@ -49,12 +49,13 @@ BodyState BodyState::at_pose(const Pose& p, const Vec3& c) {
   return s;
 }
 
-Vec6 coupling_wrench(const RigidBody& body, const Coupling& c, const BodyState& s, const Pose& target) {
+Vec6 coupling_wrench(const RigidBody& body, const Coupling& c, const BodyState& s, const Pose& target,
+                     const Vec6& target_velocity) {
   const Vec3 xt = target.position + target.rotation * body.center_of_mass;
   const Vec3 rot = rotation_vector(target.rotation.normalized() * s.q.conjugate());  // world
   Vec6 f;
-  f.head<3>() = c.k_lin * (xt - s.x) - c.b_lin * s.v;
-  f.tail<3>() = c.k_ang * rot - c.b_ang * s.w;
+  f.head<3>() = c.k_lin * (xt - s.x) + c.b_lin * (target_velocity.head<3>() - s.v);
+  f.tail<3>() = c.k_ang * rot + c.b_ang * (target_velocity.tail<3>() - s.w);
   return f;
 }
 
@@ -79,7 +80,7 @@ void step_body(const RigidBody& body, const Coupling& c, const StepInput& in, Bo
   M.topLeftCorner<3, 3>() = body.mass * Mat3::Identity();
   M.bottomRightCorner<3, 3>() = R * body.inertia * R.transpose();
 
-  Vec6 f = in.contact + coupling_wrench(body, c, s, in.target);
+  Vec6 f = in.contact + coupling_wrench(body, c, s, in.target, in.target_velocity);
   f.head<3>() += body.mass * in.gravity;
   // Gyroscopic torque -w x (I w), explicit (small at haptic rates).
   f.tail<3>() -= s.w.cross(M.bottomRightCorner<3, 3>() * s.w);

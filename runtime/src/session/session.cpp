@@ -1,0 +1,289 @@
+// A haptic session: see hrt/session.h for the steps of one frame.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <stdexcept>
+
+#include <Eigen/Cholesky>
+
+#include "hrt/session.h"
+
+namespace hrt {
+
+namespace {
+
+Mat3 skew(const Vec3& r) {
+  Mat3 m;
+  m << 0, -r.z(), r.y(), r.z(), 0, -r.x(), -r.y(), r.x(), 0;
+  return m;
+}
+
+// Rotation vector (angle times axis) of a unit quaternion, the short way.
+Vec3 rotation_vector(Eigen::Quaterniond q) {
+  if (q.w() < 0) q.coeffs() = -q.coeffs();
+  const Vec3 im = q.vec();
+  const double s = im.norm();
+  if (s < 1e-12) return 2.0 * im;
+  return 2.0 * std::atan2(s, q.w()) * im / s;
+}
+
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
+}
+
+}  // namespace
+
+Coupling default_coupling(const DeviceInfo& device, const RigidBody& probe) {
+  Coupling c;
+  c.k_lin = device.max_stiffness;
+  c.k_ang = device.max_angular_stiffness;
+  const double m = probe.mass;
+  const double I = std::max(probe.inertia.diagonal().maxCoeff(), 1e-12);
+  // Critical damping of the probe on the coupling spring; capped at
+  // b h / m = 1 at h = 1 ms so the damper alone never dominates a
+  // 1 kHz frame of a very light probe (the implicit step would stay
+  // stable, but the probe would crawl behind the hand).
+  c.b_lin = std::min(2.0 * std::sqrt(c.k_lin * m), m / 1e-3);
+  c.b_ang = std::min(2.0 * std::sqrt(c.k_ang * I), I / 1e-3);
+  return c;
+}
+
+Session::Session(const Scene& scene, const SessionOptions& options, const std::vector<Pose>& initial)
+    : scene_(scene), options_(options), state_(scene), initial_(initial) {
+  if (static_cast<int>(initial.size()) != scene.size())
+    throw std::invalid_argument("session: " + std::to_string(initial.size()) + " initial poses for " +
+                                std::to_string(scene.size()) + " objects");
+  if (!(options.density > 0) || !std::isfinite(options.density))
+    throw std::invalid_argument("session: density must be positive and finite");
+  if (!options.materials.empty() && static_cast<int>(options.materials.size()) != scene.size())
+    throw std::invalid_argument("session: materials must have one entry per object");
+  body_ = RigidBody::from_model(scene.model(0), options.density);
+  if (!(body_.mass > 0) || !std::isfinite(body_.mass) || !body_.inertia.allFinite() ||
+      !(body_.inertia.diagonal().minCoeff() > 0))
+    throw std::invalid_argument("session: the probe '" + scene.model(0).name +
+                                "' has no usable mass properties (volume " +
+                                std::to_string(scene.model(0).mass.volume) + " m^3)");
+  body_state_ = BodyState::at_pose(initial[0], body_.center_of_mass);
+  trajectories_.assign(static_cast<size_t>(scene.size()), nullptr);
+  memory_.resize(2 * static_cast<size_t>(scene.options().cluster.max_patches));
+  for (int b = 0; b < scene.size(); ++b) state_.poses[static_cast<size_t>(b)] = initial[static_cast<size_t>(b)];
+}
+
+void Session::set_trajectory(int b, const Trajectory* trajectory) {
+  if (b < 1 || b >= scene_.size()) throw std::invalid_argument("session: trajectory for object " + std::to_string(b));
+  trajectories_[static_cast<size_t>(b)] = trajectory;
+}
+
+const Material& Session::material(int b) const {
+  return options_.materials.empty() ? options_.material : options_.materials[static_cast<size_t>(b)];
+}
+
+Session::PatchMemory* Session::memory_for(uint64_t id, int b) {
+  PatchMemory* free_slot = nullptr;
+  for (PatchMemory& m : memory_) {
+    if (m.active && m.id == id && m.object_b == b) return &m;
+    if (!m.active && !free_slot) free_slot = &m;
+  }
+  if (!free_slot) {  // every slot live (more tracked patches than 2 x max_patches): reuse the oldest
+    free_slot = &memory_.front();
+    for (PatchMemory& m : memory_)
+      if (m.seen < free_slot->seen) free_slot = &m;
+  }
+  *free_slot = PatchMemory{};
+  free_slot->id = id;
+  free_slot->object_b = b;
+  free_slot->active = true;
+  return free_slot;
+}
+
+const SessionFrame& Session::step(double t, double h, const Pose& target) {
+  SessionFrame& out = last_;
+  out = SessionFrame{};
+  out.t = t;
+  out.h = h;
+  out.frame = ++frames_;
+  out.target = target;
+
+  // 1. Poses at the start of the frame.
+  const Vec3 com = body_.center_of_mass;
+  state_.poses[0] = body_state_.pose(com);
+  for (int b = 1; b < scene_.size(); ++b) {
+    const Trajectory* tr = trajectories_[static_cast<size_t>(b)];
+    state_.poses[static_cast<size_t>(b)] = tr ? tr->sample(t) : initial_[static_cast<size_t>(b)];
+  }
+
+  // 2. Contact patches and texture wrenches.
+  frame(scene_, state_);
+  out.timings = state_.timings;
+  const auto t0 = std::chrono::steady_clock::now();
+
+  // 3-4. Materials, fades, friction.
+  const double k_scene = scene_.options().force.stiffness;
+  const Eigen::Isometry3d TA = state_.poses[0].iso();
+  Vec6 contact = Vec6::Zero(), friction = Vec6::Zero();
+  Mat6 K = Mat6::Zero();  // d(wrench)/d(twist), negative semi-definite
+  for (int k = 0; k < state_.num_patches; ++k) {
+    const ContactPatch& p = state_.patches[static_cast<size_t>(k)];
+    const int b = p.object_b;
+    const Material& mat = material(b);
+    const double kp = mat.stiffness > 0 ? mat.stiffness : k_scene;
+    PatchMemory* mem = memory_for(state_.patch_ids[static_cast<size_t>(k)], b);
+    mem->seen = frames_;
+    ++out.patches;
+
+    Vec6 w = Vec6::Zero();
+    if (p.refused) {
+      // Fade the last accepted wrench out instead of stepping to zero.
+      ++out.refused;
+      mem->fade = std::max(0.0, mem->fade - h / std::max(options_.fade_time, 1e-9));
+      if (mem->fade > 0) {
+        w = mem->fade * mem->last_wrench;
+        ++out.fading;
+      }
+    } else if (p.covered) {
+      w.head<3>() = (kp / k_scene) * p.force;
+      w.tail<3>() = (kp / k_scene) * p.torque;
+      if (!w.allFinite()) w.setZero();
+      mem->last_wrench = w;
+      mem->fade = 1.0;
+      out.contact_energy += 0.5 * kp * p.delta_force * p.delta_force;
+      if (p.delta_force > 0) {
+        Vec6 g;
+        g.head<3>() = p.grad[0] * p.u + p.grad[1] * p.v + p.grad[2] * p.n;
+        g.tail<3>() = p.grad[3] * p.u + p.grad[4] * p.v + p.grad[5] * p.n;
+        if (g.allFinite()) K.noalias() -= kp * g * g.transpose();
+      }
+    }
+    contact += w;
+
+    // Friction on the tangent plane of n, from the patch's normal force.
+    const double fn = std::max(0.0, -w.head<3>().dot(p.n));
+    if (!options_.friction || !(mat.mu_static > 0) || !(fn > 0)) {
+      mem->friction = false;
+      continue;
+    }
+    const Eigen::Isometry3d TB = state_.poses[static_cast<size_t>(b)].iso();
+    if (!mem->friction) {  // a new contact: both anchors at the contact point, sticking
+      const Vec3 c = 0.5 * (p.p_a + p.p_b);
+      mem->anchor_a = TA.inverse() * c;
+      mem->anchor_b = TB.inverse() * c;
+      mem->friction = true;
+      mem->slipping = false;
+    }
+    const double kt = mat.tangential_stiffness > 0 ? mat.tangential_stiffness : kp;
+    const Vec3 a_a = TA * mem->anchor_a;
+    Vec3 a_b = TB * mem->anchor_b;
+    Vec3 s = a_b - a_a;
+    s -= s.dot(p.n) * p.n;
+    double ft = kt * s.norm();
+    const double limit_static = mat.mu_static * fn, limit_dynamic = mat.mu_dynamic * fn;
+    if (mem->slipping ? ft > limit_dynamic : ft > limit_static) {
+      // Slip: drag B's anchor so that the spring pulls with mu_d F_n.
+      mem->slipping = true;
+      const Vec3 dir = s / s.norm();
+      s = dir * (limit_dynamic / kt);
+      a_b = a_a + s;
+      mem->anchor_b = TB.inverse() * a_b;
+      ft = limit_dynamic;
+      ++out.slipping;
+    } else {
+      mem->slipping = false;
+      ++out.sticking;
+      // Sticking: the spring is in the implicit step's stiffness,
+      // d(wrench) = -k_t J^T P J d(twist), J = [I, -[r]x], P the tangent projector.
+      const Vec3 r = a_a - body_state_.x;
+      const Mat3 P = Mat3::Identity() - p.n * p.n.transpose();
+      Eigen::Matrix<double, 3, 6> J;
+      J.leftCols<3>() = Mat3::Identity();
+      J.rightCols<3>() = -skew(r);
+      K.noalias() -= kt * J.transpose() * P * J;
+    }
+    const Vec3 F = kt * s;
+    Vec6 fw;
+    fw.head<3>() = F;
+    fw.tail<3>() = (a_a - body_state_.x).cross(F);
+    if (fw.allFinite()) friction += fw;
+    out.friction_energy += 0.5 * kt * s.squaredNorm();
+  }
+  for (PatchMemory& m : memory_)
+    if (m.active && m.seen != frames_) m.active = false;  // the contact ended: forget its anchors
+
+  // Energies of the state the frame saw (before the step).
+  const Coupling c = options_.coupling_enabled ? options_.coupling : Coupling{};
+  {
+    const Mat3 R = body_state_.q.toRotationMatrix();
+    out.kinetic = 0.5 * body_.mass * body_state_.v.squaredNorm() +
+                  0.5 * body_state_.w.dot(R * body_.inertia * R.transpose() * body_state_.w);
+    const Vec3 xt = target.position + target.rotation * com;
+    const Vec3 rot = rotation_vector(target.rotation.normalized() * body_state_.q.conjugate());
+    out.coupling_energy = 0.5 * c.k_lin * (xt - body_state_.x).squaredNorm() + 0.5 * c.k_ang * rot.squaredNorm();
+    out.gravity_energy = -body_.mass * options_.gravity.dot(body_state_.x);
+  }
+
+  // The target's velocity: the finite difference of consecutive targets
+  // (exact for a scripted device's linear segments; a real device's pose
+  // noise enters the damper, as it would through a physical one).
+  Vec6 vt = Vec6::Zero();
+  if (have_prev_target_ && h > 0) {
+    const Vec3 xt = target.position + target.rotation * com;
+    const Vec3 xp = prev_target_.position + prev_target_.rotation * com;
+    vt.head<3>() = (xt - xp) / h;
+    vt.tail<3>() = rotation_vector(target.rotation.normalized() * prev_target_.rotation.normalized().conjugate()) / h;
+    if (!vt.allFinite()) vt.setZero();
+  }
+  prev_target_ = target;
+  have_prev_target_ = true;
+
+  // 5. The implicit step.
+  StepInput in;
+  in.h = h;
+  in.contact = contact + friction;
+  in.contact_stiffness = K;
+  in.target = target;
+  in.gravity = options_.gravity;
+  in.target_velocity = vt;
+  step_body(body_, c, in, body_state_);
+  out.contact = contact;
+  out.friction = friction;
+  out.probe = body_state_.pose(com);
+  out.coupling = coupling_wrench(body_, c, body_state_, target, vt);
+
+  // 6. The device command: the reaction of the coupling on the handle, and
+  // K_eff = K_c - K_c (K_c + K)^-1 K_c (K = -K here, positive).
+  const Vec6 spring = -out.coupling;
+  Mat6 Kc = Mat6::Zero();
+  Kc.topLeftCorner<3, 3>() = c.k_lin * Mat3::Identity();
+  Kc.bottomRightCorner<3, 3>() = c.k_ang * Mat3::Identity();
+  Mat6 Keff = Mat6::Zero();
+  if (c.k_lin > 0 || c.k_ang > 0) {
+    // (K_c + K) is singular only where K_c is (a zero gain): regularize those
+    // modes by one, they are multiplied by zero rows of K_c anyway.
+    Mat6 A = Kc - K;
+    for (int i = 0; i < 6; ++i)
+      if (Kc(i, i) <= 0) A(i, i) += 1.0;
+    Keff = Kc - Kc * A.ldlt().solve(Kc);
+    Keff = 0.5 * (Keff + Keff.transpose());
+    // Cap at the device's stiffness (congruence keeps it PSD).
+    Vec6 sdiag;
+    const double sl = c.k_lin > options_.max_device_stiffness ? std::sqrt(options_.max_device_stiffness / c.k_lin) : 1.0;
+    const double sa = c.k_ang > options_.max_device_angular_stiffness
+                          ? std::sqrt(options_.max_device_angular_stiffness / c.k_ang) : 1.0;
+    sdiag << sl, sl, sl, sa, sa, sa;
+    Keff = sdiag.asDiagonal() * Keff * sdiag.asDiagonal();
+  }
+  command_.time = t;
+  command_.frame = frames_;
+  command_.target_ref = target;
+  command_.wrench = spring;
+  command_.stiffness = Keff;
+  command_.valid = spring.allFinite() && Keff.allFinite();
+  if (!command_.valid) {
+    command_.wrench.setZero();
+    command_.stiffness.setZero();
+  }
+  out.device = command_.wrench;
+  out.dynamics_us = seconds_since(t0);
+  return out;
+}
+
+}  // namespace hrt
