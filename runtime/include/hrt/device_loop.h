@@ -20,6 +20,23 @@
 // The device thread never allocates, locks, logs or touches GL; tick() is
 // the whole of one period and can be called directly (lockstep mode: a
 // ManualClock and no thread), which is how the tests drive it.
+//
+// Session time (Device::read/write, DeviceTarget::time, the log, the ramps
+// and the watchdog) is clock.now() as it is: give the loop a clock that reads
+// session time (a ManualClock in lockstep; in real time a SteadyClock less
+// its value at the start, as `hrt run` does), so the simulation and the
+// device agree on t. The thread's deadlines are on CLOCK_MONOTONIC whatever
+// the clock.
+//
+// The output is the command's wrench times three ramps in [0, 1], each
+// linear in session time, and a fourth at stop():
+//   soft start  0 -> 1 over soft_start from the first valid command; after a
+//               clutch release or a watchdog recovery it restarts from the
+//               level the output had (s * w * c), so the output never steps;
+//   watchdog w  1 -> 0 over watchdog_ramp once no command was accepted for
+//               `watchdog` s;
+//   clutch c    1 -> 0 over watchdog_ramp while the clutch is held;
+//   stop        1 -> 0 over watchdog_ramp (counted in periods) after stop().
 #pragma once
 
 #include <array>
@@ -147,6 +164,26 @@ struct DeviceLoopOptions {
   // ticks, preallocated; 0 = off. Ticks beyond it are not logged (counted).
   size_t log_capacity = 0;
 };
+// How tick() treats its inputs (the rules the tests check):
+//   - Device::read false, or a pose with a non-finite number or a zero
+//     quaternion: the previous sample (pose and clutch) is held, counted in
+//     read_failures; before the first good pose the output is zero.
+//   - Commands: every one update() returns is counted in `commands`; one with
+//     valid == false is ignored; one with a non-finite number (or a zero
+//     target_ref quaternion) is dropped and counted in non_finite; the loop
+//     keeps evaluating the last accepted one. Only accepted commands feed the
+//     watchdog (time since the last one, and the publication periods), so a
+//     simulation that publishes only garbage is ramped out too.
+//   - Clutch: on press the target freezes at to_scene(pose at the press);
+//     on release the map's offset is changed so that to_scene(pose at the
+//     release) is the frozen target (orientation included: the device's
+//     base is rotated against the scene by what the hand turned while
+//     clutched), and the soft start restarts.
+//   - Torque policy: a device with dof_actuated < 6 (3: force only) gets a
+//     zero torque.
+//   - Limits: a device limit that is not finite and positive counts as 0.
+//     The rate limit is per tick: |F - F_prev| <= max_force_rate * period
+//     (likewise the torque), period = options.period.
 
 struct DeviceLogRow {
   double t = 0.0;
@@ -186,6 +223,13 @@ class DeviceLoop {
   // Thread mode: a thread calling tick() at absolute deadlines of the
   // monotonic clock (clock_nanosleep TIMER_ABSTIME). stop() ramps the output
   // to zero over watchdog_ramp, writes zero, joins.
+  // Each wake-up records |actual - deadline| in stats().period_error (until
+  // max_ticks_recorded), so a thread-only run has one entry per tick. A wake-up
+  // later than the next deadline drops the missed periods (the grid restarts
+  // from now) instead of running a burst of ticks on one stale pose.
+  // Without a thread (lockstep) stop() writes a zero wrench at once: there
+  // is no one to tick the ramp. In both modes ticks after stop() (or a new
+  // start()) soft-start the output again.
   void start();
   void stop();
   bool running() const { return running_.load(); }
@@ -209,5 +253,16 @@ class DeviceLoop {
   std::thread thread_;
   std::atomic<bool> running_{false};
 };
+
+// Percentiles of DeviceLoopStats::period_error (s), for the summary of
+// `hrt run` and the README's jitter figures: p50 and p99 interpolated
+// linearly between order statistics (numpy's default), the maximum, and the
+// number of samples (all 0 when there are none). Sorts a copy: call it after
+// stop(), not on the device thread.
+struct JitterSummary {
+  double p50 = 0.0, p99 = 0.0, max = 0.0;
+  size_t samples = 0;
+};
+JitterSummary summarize_jitter(const DeviceLoopStats& stats);
 
 }  // namespace hrt
