@@ -69,6 +69,9 @@ clean:
 FUZZ_BUILD := build/fuzz
 FUZZ_BIN   := $(FUZZ_BUILD)/fuzz/hrt_fuzz_bundle
 FUZZ_RUNS  ?= 40000
+FUZZ_UDP_BIN  := $(FUZZ_BUILD)/fuzz/hrt_fuzz_udp
+FUZZ_UDP_RUNS ?= 1000000
+FUZZ_UDP_OPTS := -max_len=65536 -timeout=10 -rss_limit_mb=1024 -dict=$(CURDIR)/runtime/fuzz/udp.dict -print_final_stats=1
 FUZZ_OPTS  := -max_len=131072 -timeout=10 -rss_limit_mb=2048 -dict=$(CURDIR)/runtime/fuzz/bundle.dict -print_final_stats=1
 HOURS      ?= 1
 FUZZ_JOBS  ?= $(JOBS)
@@ -78,13 +81,16 @@ FUZZ_DIR   ?= $(HOME)/.cache/hrt-fuzz
 
 fuzz-build: apt
 	cmake -S runtime -B $(FUZZ_BUILD) -DCMAKE_CXX_COMPILER=clang++ -DHRT_FUZZ=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
-	cmake --build $(FUZZ_BUILD) -j $(JOBS) --target hrt_fuzz_bundle
+	cmake --build $(FUZZ_BUILD) -j $(JOBS) --target hrt_fuzz_bundle hrt_fuzz_udp
 
 test-fuzz: fuzz-build
 	rm -rf $(FUZZ_BUILD)/ci && mkdir -p $(FUZZ_BUILD)/ci/artifacts
 	cp -r $(FUZZ_BUILD)/fuzz/seed_corpus $(FUZZ_BUILD)/ci/corpus
-	find runtime/fuzz/regressions -name '*.bin' -exec cp {} $(FUZZ_BUILD)/ci/corpus/ \;
+	find runtime/fuzz/regressions -name '*.bin' ! -name 'udp-*' -exec cp {} $(FUZZ_BUILD)/ci/corpus/ \;
 	$(FUZZ_BIN) -seed=1 -runs=$(FUZZ_RUNS) $(FUZZ_OPTS) -artifact_prefix=$(CURDIR)/$(FUZZ_BUILD)/ci/artifacts/ $(FUZZ_BUILD)/ci/corpus
+	cp -r $(FUZZ_BUILD)/fuzz/udp_seed_corpus $(FUZZ_BUILD)/ci/udp_corpus
+	find runtime/fuzz/regressions -name 'udp-*.bin' -exec cp {} $(FUZZ_BUILD)/ci/udp_corpus/ \;
+	$(FUZZ_UDP_BIN) -seed=1 -runs=$(FUZZ_UDP_RUNS) $(FUZZ_UDP_OPTS) -artifact_prefix=$(CURDIR)/$(FUZZ_BUILD)/ci/artifacts/udp- $(FUZZ_BUILD)/ci/udp_corpus
 
 # FUZZ_JOBS workers for HOURS each (a worker stops at its first finding; its
 # log is $(FUZZ_DIR)/fuzz-N.log, findings in $(FUZZ_DIR)/artifacts).
