@@ -247,12 +247,12 @@ class Model:
         return float(q["displacement_outward"]) + float(q["displacement_inward"])
 
 
-def bake_model(name: str, root: Path) -> Model:
-    """Bake MESHES[name] with the `hbake bake` command (a child process: a native crash
-    is a failed bake, not a dead pytest), or reuse the bundle of the same key."""
+def bake_model(name: str, root: Path, make=None) -> Model:
+    """Bake MESHES[name] (or ``make()``) with the `hbake bake` command (a child process: a
+    native crash is a failed bake, not a dead pytest), or reuse the bundle of the same key."""
     from hbake.bundle import read_bundle
 
-    mesh = MESHES[name]()
+    mesh = (make or MESHES[name])()
     data = mesh.export(file_type="ply")
     key = hashlib.sha256(data + json.dumps(BAKE_OVERRIDES, sort_keys=True).encode()
                          + _hbake_source_hash().encode()).hexdigest()[:12]

@@ -11,7 +11,7 @@
 
 namespace {
 
-// "check, query, bench": the registered subcommands, in order.
+// "check, query, bench, run": the registered subcommands, in order.
 std::string command_list(CLI::App& app) {
   std::string out;
   for (const CLI::App* sub : app.get_subcommands([](const CLI::App*) { return true; }))
@@ -46,6 +46,7 @@ int main(int argc, char** argv) {
   hrt_cli::register_check(app);
   hrt_cli::register_query(app);
   hrt_cli::register_bench(app);
+  hrt_cli::register_run(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -147,7 +147,6 @@ b_ang = 0.01
 enabled = true
 mu_static = 0.4
 mu_dynamic = 0.3
-tangential_stiffness = 800.0
 
 [[material]]
 object = "cup"
@@ -238,7 +237,6 @@ device_log = "out/device.csv"
   EXPECT_DOUBLE_EQ(c.session.material.stiffness, 0.0);  // 0: the scene's k
   EXPECT_DOUBLE_EQ(c.session.material.mu_static, 0.4);
   EXPECT_DOUBLE_EQ(c.session.material.mu_dynamic, 0.3);
-  EXPECT_DOUBLE_EQ(c.session.material.tangential_stiffness, 800.0);
   ASSERT_EQ(c.session.materials.size(), 3u);
   // plate: no [[material]], the default; cup: its own k and mu_s, the rest inherited.
   EXPECT_DOUBLE_EQ(c.session.materials[1].stiffness, 0.0);
@@ -246,7 +244,6 @@ device_log = "out/device.csv"
   EXPECT_DOUBLE_EQ(c.session.materials[2].stiffness, 1800.0);
   EXPECT_DOUBLE_EQ(c.session.materials[2].mu_static, 0.6);
   EXPECT_DOUBLE_EQ(c.session.materials[2].mu_dynamic, 0.3);
-  EXPECT_DOUBLE_EQ(c.session.materials[2].tangential_stiffness, 800.0);
 
   EXPECT_DOUBLE_EQ(c.loop.map.scale, 2.0);
   EXPECT_EQ(c.loop.map.offset.position, hrt::Vec3(0.1, 0.2, 0.3));

@@ -63,6 +63,12 @@ struct ContactPatch {
   // Results of the force model (filled by compute_patch_wrench).
   double delta = 0.0;            // directional penetration depth (Eq. 9), m
   Vec6 grad = Vec6::Zero();      // d delta / d(u, v, n, theta_u, theta_v, theta_n); [2] == 1
+  // Second differences of delta from the same configurations (Eq. 7's
+  // central differences give them for free): d2 delta / d q_i^2 for q = (u,
+  // v, n, theta_u, theta_v, theta_n), 1/m and m/rad^2; [2] = 0 (delta is
+  // linear in n); 0 where a neighbour is uncovered. The diagonal of the
+  // Hessian that the Gauss-Newton stiffness leaves out (hrt/session.h).
+  Vec6 curvature = Vec6::Zero();
   Vec3 force = Vec3::Zero();     // on A, world, N
   Vec3 torque = Vec3::Zero();    // on A about A's centre of mass, world, N m
   bool covered = false;          // some texel was covered by both A and B
@@ -90,6 +96,14 @@ struct ContactPatch {
   // delta, grad above stay the force model's own values (Eq. 7, 9).
   double delta_bound = 0.0;
   double delta_force = 0.0;
+  // The contact region (compute_patch_wrench): the texels of the window
+  // where A and B overlap. contact_center: their overlap-weighted centroid
+  // (world, on the window's plane); contact_lo/hi: their bounding box as
+  // offsets from it along u and v (m; lo <= 0 <= hi). contact_texels = 0:
+  // no overlap (touching within the tolerance only).
+  Vec3 contact_center = Vec3::Zero();
+  double contact_lo_u = 0.0, contact_hi_u = 0.0, contact_lo_v = 0.0, contact_hi_v = 0.0;
+  int contact_texels = 0;
   bool clamped = false;
   bool refused = false;
   bool facing = true;

@@ -233,6 +233,14 @@ struct DepthGradient {
   double lin_step = 0, ang_step = 0;  // the steps used
   double delta_at[static_cast<int>(Config::count)] = {};
   int uncovered_configurations = 0;
+  // The contact region at configuration 0: the texels where A and B overlap
+  // (h_A - h_B > 0), in window texel coordinates (texel (i, j) spans
+  // [i, i + 1] x [j, j + 1]): their centroid weighted by the overlap, and
+  // their bounding box. region_texels = 0 when delta <= 0 (touching within
+  // the tolerance only: no overlap).
+  int region_texels = 0;
+  double region_center[2] = {0, 0};
+  double region_lo[2] = {0, 0}, region_hi[2] = {0, 0};
 };
 DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
                                      const ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch);

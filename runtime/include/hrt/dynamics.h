@@ -84,7 +84,27 @@ Vec6 coupling_wrench(const RigidBody& body, const Coupling& c, const BodyState& 
 // of mass): the contact stiffness for StepInput (state.patches after frame()).
 Mat6 contact_stiffness(const State& state, double k);
 
-// One linearized backward-Euler step (see the header comment).
-void step_body(const RigidBody& body, const Coupling& c, const StepInput& in, BodyState& s);
+// Coulomb friction at one contact, solved inside the step (velocity level).
+// J's two rows map the body's velocity (v, w) to the tangential velocity of
+// A's contact point along the two tangents t1, t2: [t_i^T, (r x t_i)^T];
+// v_b: B's velocity there along them. The solve finds friction forces F (N,
+// along t1, t2; the wrench J^T F) such that, after the step, each sticking
+// contact's relative tangential velocity is zero with |F| <= limit_static;
+// a contact whose required force exceeds that slips, with |F| =
+// limit_dynamic (mu_d F_n) along the force it needed: Coulomb's law, with no
+// spring and no damper to tune, stable at any time step because it is part
+// of the implicit step. Projected Gauss-Seidel over the contacts.
+struct FrictionRow {
+  Eigen::Matrix<double, 2, 6> J = Eigen::Matrix<double, 2, 6>::Zero();
+  Eigen::Vector2d v_b = Eigen::Vector2d::Zero();
+  double limit_static = 0.0, limit_dynamic = 0.0;  // N
+  Eigen::Vector2d force = Eigen::Vector2d::Zero();  // out
+  bool slipping = false;                            // out
+};
+
+// One linearized backward-Euler step (see the header comment), with the
+// friction rows (may be null when count is 0) solved in it.
+void step_body(const RigidBody& body, const Coupling& c, const StepInput& in, BodyState& s,
+               FrictionRow* friction = nullptr, int friction_count = 0);
 
 }  // namespace hrt

@@ -5,8 +5,8 @@
 // every key is known (a typo is an error, not a silent default), every value
 // has the right type, unit range and finiteness, paths are resolved against
 // the scene file's folder. Device-dependent defaults (coupling gains from the
-// device's limits) are left negative here and filled by the caller once the
-// device is open (apply_device_defaults).
+// device's limits) are left negative here (coupling_from_device) and filled by
+// the caller once the device is open (default_coupling, hrt/session.h).
 #pragma once
 
 #include <cstdio>

@@ -14,16 +14,16 @@
 //      (the force model is linear in k); a patch the safety checks refused
 //      fades out over fade_time from its last accepted wrench instead of
 //      stepping to zero;
-//   4. friction (Coulomb, static and dynamic): per patch a tangential spring
-//      between two anchors, one fixed on A and one on B, made where the patch
-//      began; its force is k_t times their separation in the tangent plane of
-//      n, applied at A's anchor; when it exceeds mu_s F_n the patch slips: the
-//      B anchor is dragged so the force is mu_d F_n along the separation; a
-//      slipping patch sticks again once the spring force falls below mu_d F_n
-//      (F_n = the patch's normal force, -F . n). Stiff and stable at haptic
-//      rates because the spring enters the implicit step's stiffness;
+//   4. friction (Coulomb, static and dynamic coefficients) on each patch's
+//      tangent plane, from the patch's normal force F_n = -F . n, acting at
+//      the centre of its contact region: solved inside the implicit step at
+//      the velocity level (hrt/dynamics.h, FrictionRow): a patch sticks
+//      (zero relative tangential velocity after the step) while the force
+//      that takes is within mu_s F_n, else slips with mu_d F_n. The tipping
+//      moment of friction is taken up by the contact region's centre of
+//      pressure when the region is wide enough (session.cpp says why);
 //   5. the implicit step (step_body) with K = contact stiffness (k of each
-//      pair) + friction springs (sticking patches) + coupling;
+//      pair) + coupling, and the friction rows;
 //   6. the device command: W0 = the coupling's reaction on the device
 //      (its spring, and its damper on the velocity relative to the target's,
 //      the finite difference of consecutive targets), K_eff = K_c - K_c (K_c + K)^-1 K_c (capped at the device's
@@ -45,7 +45,6 @@ struct Material {
   double stiffness = 0.0;             // k, N/m; 0: the scene's force.stiffness
   double mu_static = 0.0;             // Coulomb coefficients (mu_dynamic <= mu_static)
   double mu_dynamic = 0.0;
-  double tangential_stiffness = 0.0;  // k_t of the friction spring, N/m; 0: equal to k
 };
 
 struct SessionOptions {
@@ -83,7 +82,7 @@ struct SessionFrame {
   Vec6 device = Vec6::Zero();       // W0 of the device command (scene frame)
   int patches = 0, sticking = 0, slipping = 0, refused = 0, fading = 0;
   double kinetic = 0.0, coupling_energy = 0.0, contact_energy = 0.0, gravity_energy = 0.0;
-  double friction_energy = 0.0;     // stored in the friction springs
+  double friction_energy = 0.0;     // 0: velocity-level friction stores no energy (the column is kept)
   StageTimings timings;             // of frame()
   double dynamics_us = 0.0;         // materials, friction, step, command
 };
@@ -115,8 +114,7 @@ class Session {
   struct PatchMemory {       // per tracked patch id, in A's and B's frames
     uint64_t id = 0;
     int object_b = -1;
-    bool active = false, friction = false, slipping = false;
-    Vec3 anchor_a = Vec3::Zero(), anchor_b = Vec3::Zero();  // object frames
+    bool active = false;
     Vec6 last_wrench = Vec6::Zero();  // last accepted texture wrench (world, about c_A)
     double fade = 0.0;                // 1 = live, decreasing while refused
     uint64_t seen = 0;                // frame it was last seen
@@ -132,6 +130,9 @@ class Session {
   std::vector<Pose> initial_;
   std::vector<const Trajectory*> trajectories_;
   std::vector<PatchMemory> memory_;  // capacity 2 x max_patches
+  std::vector<FrictionRow> friction_;  // one per patch with friction (capacity max_patches)
+  std::vector<int> friction_patch_;
+  size_t num_friction_ = 0;
   SessionFrame last_;
   DeviceCommand command_;
   uint64_t frames_ = 0;

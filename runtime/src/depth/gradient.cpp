@@ -276,6 +276,33 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   if (D[0] == -kInf) return out;  // nothing covered by both: no contact
   out.covered = true;
   out.delta = D[0];
+  if (D[0] > 0) {
+    // The contact region (where the two overlap), for friction's centre of
+    // pressure (hrt/session.h). One pass over configuration 0.
+    double w_sum = 0, wi = 0, wj = 0;
+    int lo_i = N, lo_j = N, hi_i = -1, hi_j = -1, count_overlap = 0;
+    for (int j = 0; j < N; ++j) {
+      const double* ra = ha0 + static_cast<size_t>(j + border) * S + border;
+      const double* rb = hb + static_cast<size_t>(j) * N;
+      for (int i = 0; i < N; ++i) {
+        const double d = ra[i] - rb[i];
+        if (!(d > 0)) continue;  // -inf (uncovered) and touching texels are no overlap
+        ++count_overlap;
+        w_sum += d;
+        wi += d * (i + 0.5);
+        wj += d * (j + 0.5);
+        lo_i = std::min(lo_i, i), hi_i = std::max(hi_i, i);
+        lo_j = std::min(lo_j, j), hi_j = std::max(hi_j, j);
+      }
+    }
+    if (count_overlap > 0 && w_sum > 0) {
+      out.region_texels = count_overlap;
+      out.region_center[0] = wi / w_sum;
+      out.region_center[1] = wj / w_sum;
+      out.region_lo[0] = lo_i, out.region_lo[1] = lo_j;
+      out.region_hi[0] = hi_i + 1, out.region_hi[1] = hi_j + 1;
+    }
+  }
   for (int k = 1; k < count; ++k) {
     const int c = rendered[k];
     if (seeded && shift_m > 0 && c >= 1 && c <= 4) {

@@ -1,5 +1,6 @@
 // The texture force model (paper Eq. 3-6) on top of the depth and its
 // gradient (src/depth). See hrt/depth.h.
+#include <cmath>
 #include <algorithm>
 #include <limits>
 
@@ -45,15 +46,36 @@ void compute_patch_wrench(const Model& A, const Pose& pose_a, const Model& B, co
   const DepthGradient g = compute_depth_gradient(A, pose_a, B, pose_b, patch, opt, scratch);
   if (warnings) warnings->uncovered_configurations += static_cast<uint64_t>(g.uncovered_configurations);
   patch.covered = g.covered;
+  patch.contact_texels = 0;
   if (!g.covered) {
     patch.delta = 0.0;
     patch.grad << 0, 0, 1, 0, 0, 0;
+    patch.curvature.setZero();
     patch.force.setZero();
     patch.torque.setZero();
     return;
   }
   patch.delta = g.delta;
   patch.grad = g.grad;
+  {
+    const double* D = g.delta_at;
+    auto second = [&](int plus, int minus, double step) {
+      if (!(step > 0) || !(D[plus] > -1e300) || !(D[minus] > -1e300)) return 0.0;
+      const double c = (D[plus] + D[minus] - 2.0 * D[0]) / (step * step);
+      return std::isfinite(c) ? c : 0.0;
+    };
+    patch.curvature << second(1, 2, g.lin_step), second(3, 4, g.lin_step), 0.0, second(5, 6, g.ang_step),
+        second(7, 8, g.ang_step), second(9, 10, g.ang_step);
+  }
+  patch.contact_texels = g.region_texels;
+  if (g.region_texels > 0) {
+    const double c = patch.window.cell;
+    patch.contact_center = patch.window.origin + c * g.region_center[0] * patch.u + c * g.region_center[1] * patch.v;
+    patch.contact_lo_u = c * (g.region_lo[0] - g.region_center[0]);
+    patch.contact_hi_u = c * (g.region_hi[0] - g.region_center[0]);
+    patch.contact_lo_v = c * (g.region_lo[1] - g.region_center[1]);
+    patch.contact_hi_v = c * (g.region_hi[1] - g.region_center[1]);
+  }
   wrench_from_gradient(patch, g.delta, g.grad, opt.stiffness, patch.force, patch.torque);
 }
 

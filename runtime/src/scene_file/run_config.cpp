@@ -55,8 +55,8 @@ const std::map<std::string, std::vector<std::string>>& known_keys() {
         "auto_resolution", "max_resolution", "fade_time"}},
       {"probe", {"density", "gravity"}},
       {"coupling", {"enabled", "k_lin", "b_lin", "k_ang", "b_ang"}},
-      {"friction", {"enabled", "mu_static", "mu_dynamic", "tangential_stiffness"}},
-      {"material", {"object", "stiffness", "mu_static", "mu_dynamic", "tangential_stiffness"}},
+      {"friction", {"enabled", "mu_static", "mu_dynamic"}},
+      {"material", {"object", "stiffness", "mu_static", "mu_dynamic"}},
       {"workspace", {"scale", "offset_position", "offset_orientation", "grasp_position", "grasp_orientation"}},
       {"device",
        {"type", "trajectory", "trajectory_prefix", "name", "dof_actuated", "dof_sensed", "workspace", "max_force",
@@ -414,7 +414,6 @@ Material read_material(const Section& s, Material m) {
   if (s.has("stiffness")) m.stiffness = s.positive("stiffness", m.stiffness);
   m.mu_static = s.nonnegative("mu_static", m.mu_static);
   m.mu_dynamic = s.nonnegative("mu_dynamic", m.mu_dynamic);
-  if (s.has("tangential_stiffness")) m.tangential_stiffness = s.positive("tangential_stiffness", 0.0);
   if (m.mu_dynamic > m.mu_static) {
     // Name the key the file set (an inherited value cannot be the mistake).
     const std::string k = s.has("mu_dynamic") ? "mu_dynamic" : "mu_static";

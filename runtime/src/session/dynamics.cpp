@@ -1,4 +1,5 @@
 // Probe dynamics: see hrt/dynamics.h.
+#include <algorithm>
 #include <cmath>
 
 #include <Eigen/Cholesky>
@@ -73,7 +74,8 @@ Mat6 contact_stiffness(const State& st, double k) {
   return K;
 }
 
-void step_body(const RigidBody& body, const Coupling& c, const StepInput& in, BodyState& s) {
+void step_body(const RigidBody& body, const Coupling& c, const StepInput& in, BodyState& s,
+               FrictionRow* friction, int friction_count) {
   const double h = in.h;
   const Mat3 R = s.q.toRotationMatrix();
   Mat6 M = Mat6::Zero();
@@ -96,9 +98,45 @@ void step_body(const RigidBody& body, const Coupling& c, const StepInput& in, Bo
   vel << s.v, s.w;
   // M - h D - h^2 K is symmetric positive definite (M > 0, -D >= 0, -K >= 0).
   const Mat6 A = M - h * D - h * h * K;
+  const Eigen::LDLT<Mat6> ldlt(A);
   const Vec6 rhs = h * (f + h * K * vel);
-  const Vec6 dv = A.ldlt().solve(rhs);
+  Vec6 dv = ldlt.solve(rhs);
   if (!dv.allFinite()) return;  // never propagate NaN into the state
+
+  if (friction_count > 0) {
+    // dv(F) = dv0 + h A^-1 sum_k J_k^T F_k. Gauss-Seidel on each contact's
+    // 2x2 block W_k = h J_k A^-1 J_k^T, projected on its friction cone.
+    constexpr int kMaxContacts = 64, kIterations = 12;
+    const int n = std::min(friction_count, kMaxContacts);
+    Eigen::Matrix<double, 6, 2> AiJt[kMaxContacts];
+    Eigen::Matrix2d Winv[kMaxContacts];
+    bool usable[kMaxContacts];
+    for (int k = 0; k < n; ++k) {
+      FrictionRow& r = friction[k];
+      r.force.setZero();
+      r.slipping = false;
+      AiJt[k] = ldlt.solve(r.J.transpose());
+      const Eigen::Matrix2d W = h * r.J * AiJt[k];
+      usable[k] = r.J.allFinite() && r.limit_static > 0 && std::abs(W.determinant()) > 1e-300;
+      Winv[k] = usable[k] ? Eigen::Matrix2d(W.inverse()) : Eigen::Matrix2d::Zero();
+    }
+    for (int it = 0; it < kIterations; ++it) {
+      for (int k = 0; k < n; ++k) {
+        if (!usable[k]) continue;
+        FrictionRow& r = friction[k];
+        // Relative tangential velocity after the step with the current forces.
+        const Eigen::Vector2d g = r.J * (vel + dv) - r.v_b;
+        const Eigen::Vector2d prev = r.force;
+        Eigen::Vector2d F = prev - Winv[k] * g;  // the force that makes it zero
+        const double need = F.norm();
+        r.slipping = need > r.limit_static;
+        if (r.slipping) F *= r.limit_dynamic / need;
+        r.force = F;
+        dv += h * AiJt[k] * (F - prev);
+      }
+    }
+    if (!dv.allFinite()) return;
+  }
   vel += dv;
   s.v = vel.head<3>();
   s.w = vel.tail<3>();

@@ -66,6 +66,8 @@ Session::Session(const Scene& scene, const SessionOptions& options, const std::v
   body_state_ = BodyState::at_pose(initial[0], body_.center_of_mass);
   trajectories_.assign(static_cast<size_t>(scene.size()), nullptr);
   memory_.resize(2 * static_cast<size_t>(scene.options().cluster.max_patches));
+  friction_.resize(static_cast<size_t>(scene.options().cluster.max_patches));
+  friction_patch_.resize(friction_.size());
   for (int b = 0; b < scene.size(); ++b) state_.poses[static_cast<size_t>(b)] = initial[static_cast<size_t>(b)];
 }
 
@@ -121,6 +123,7 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
   const double k_scene = scene_.options().force.stiffness;
   const Eigen::Isometry3d TA = state_.poses[0].iso();
   Vec6 contact = Vec6::Zero(), friction = Vec6::Zero();
+  num_friction_ = 0;
   Mat6 K = Mat6::Zero();  // d(wrench)/d(twist), negative semi-definite
   for (int k = 0; k < state_.num_patches; ++k) {
     const ContactPatch& p = state_.patches[static_cast<size_t>(k)];
@@ -148,62 +151,65 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
       mem->fade = 1.0;
       out.contact_energy += 0.5 * kp * p.delta_force * p.delta_force;
       if (p.delta_force > 0) {
+        // K = -k (g g^T + delta diag(H+)): the Gauss-Newton term, plus the
+        // positive part of the Hessian's diagonal from Eq. 7's second
+        // differences (in the patch's u, v, n axes). Without it a mode whose
+        // gradient vanishes at rest, such as a flat face tilting on a flat
+        // face (delta grows with |tilt| either way), is integrated
+        // explicitly and rings undamped; the term keeps K negative
+        // semi-definite.
         Vec6 g;
         g.head<3>() = p.grad[0] * p.u + p.grad[1] * p.v + p.grad[2] * p.n;
         g.tail<3>() = p.grad[3] * p.u + p.grad[4] * p.v + p.grad[5] * p.n;
         if (g.allFinite()) K.noalias() -= kp * g * g.transpose();
+        const Vec3 axes[3] = {p.u, p.v, p.n};
+        for (int i = 0; i < 6; ++i) {
+          const double c = p.curvature[i];
+          if (!(c > 0) || !std::isfinite(c)) continue;
+          Vec6 e = Vec6::Zero();
+          (i < 3 ? e.head<3>() : e.tail<3>()) = axes[i % 3];
+          K.noalias() -= kp * p.delta_force * c * e * e.transpose();
+        }
       }
     }
     contact += w;
 
-    // Friction on the tangent plane of n, from the patch's normal force.
+    // Friction on the tangent plane of n, from the patch's normal force:
+    // one row of the step's Coulomb solve (hrt/dynamics.h, FrictionRow).
     const double fn = std::max(0.0, -w.head<3>().dot(p.n));
-    if (!options_.friction || !(mat.mu_static > 0) || !(fn > 0)) {
-      mem->friction = false;
-      continue;
+    if (!options_.friction || !(mat.mu_static > 0) || !(fn > 0) || num_friction_ >= friction_.size()) continue;
+    // Where friction acts: the centre of the contact region (the overlapping
+    // texels' centroid), else the window's centre. Not p_a / p_b: for faces
+    // in full contact those are an arbitrary point of the face (a corner,
+    // often), whose lever arm would give friction a torque of its own.
+    const double half = 0.5 * p.window.resolution * p.window.cell;
+    const Vec3 c = p.contact_texels > 0 ? p.contact_center : Vec3(p.window.origin + half * (p.u + p.v));
+    // The lever of the friction force about the centre of mass. Its part
+    // along n gives friction a tipping moment, which in a real contact the
+    // normal force balances by moving its centre of pressure towards the
+    // leading edge; one penetration depth per patch (Eq. 9) cannot move it,
+    // and the block would rock on its edges. When the contact region is wide
+    // enough to hold that centre for any force inside the cone (mu_s |r_n|
+    // <= its smallest half-extent) the tipping moment is taken up and the
+    // lever is r's in-plane part (friction still turns the probe about n);
+    // a narrow region (a tip, an edge) keeps the whole lever.
+    Vec3 r = c - body_state_.x;
+    const double rn = r.dot(p.n);
+    const double reach = std::min(std::min(-p.contact_lo_u, p.contact_hi_u), std::min(-p.contact_lo_v, p.contact_hi_v));
+    if (p.contact_texels > 0 && mat.mu_static * std::abs(rn) <= reach) r -= rn * p.n;
+    FrictionRow& row = friction_[num_friction_];
+    friction_patch_[num_friction_] = k;
+    ++num_friction_;
+    row.J.row(0) << p.u.transpose(), r.cross(p.u).transpose();
+    row.J.row(1) << p.v.transpose(), r.cross(p.v).transpose();
+    row.v_b.setZero();
+    if (const Trajectory* tr = trajectories_[static_cast<size_t>(b)]) {
+      const Vec6 tw = tr->velocity(t);
+      const Vec3 vb = tw.head<3>() + tw.tail<3>().cross(c - state_.poses[static_cast<size_t>(b)].position);
+      row.v_b << vb.dot(p.u), vb.dot(p.v);
     }
-    const Eigen::Isometry3d TB = state_.poses[static_cast<size_t>(b)].iso();
-    if (!mem->friction) {  // a new contact: both anchors at the contact point, sticking
-      const Vec3 c = 0.5 * (p.p_a + p.p_b);
-      mem->anchor_a = TA.inverse() * c;
-      mem->anchor_b = TB.inverse() * c;
-      mem->friction = true;
-      mem->slipping = false;
-    }
-    const double kt = mat.tangential_stiffness > 0 ? mat.tangential_stiffness : kp;
-    const Vec3 a_a = TA * mem->anchor_a;
-    Vec3 a_b = TB * mem->anchor_b;
-    Vec3 s = a_b - a_a;
-    s -= s.dot(p.n) * p.n;
-    double ft = kt * s.norm();
-    const double limit_static = mat.mu_static * fn, limit_dynamic = mat.mu_dynamic * fn;
-    if (mem->slipping ? ft > limit_dynamic : ft > limit_static) {
-      // Slip: drag B's anchor so that the spring pulls with mu_d F_n.
-      mem->slipping = true;
-      const Vec3 dir = s / s.norm();
-      s = dir * (limit_dynamic / kt);
-      a_b = a_a + s;
-      mem->anchor_b = TB.inverse() * a_b;
-      ft = limit_dynamic;
-      ++out.slipping;
-    } else {
-      mem->slipping = false;
-      ++out.sticking;
-      // Sticking: the spring is in the implicit step's stiffness,
-      // d(wrench) = -k_t J^T P J d(twist), J = [I, -[r]x], P the tangent projector.
-      const Vec3 r = a_a - body_state_.x;
-      const Mat3 P = Mat3::Identity() - p.n * p.n.transpose();
-      Eigen::Matrix<double, 3, 6> J;
-      J.leftCols<3>() = Mat3::Identity();
-      J.rightCols<3>() = -skew(r);
-      K.noalias() -= kt * J.transpose() * P * J;
-    }
-    const Vec3 F = kt * s;
-    Vec6 fw;
-    fw.head<3>() = F;
-    fw.tail<3>() = (a_a - body_state_.x).cross(F);
-    if (fw.allFinite()) friction += fw;
-    out.friction_energy += 0.5 * kt * s.squaredNorm();
+    row.limit_static = mat.mu_static * fn;
+    row.limit_dynamic = std::min(mat.mu_dynamic, mat.mu_static) * fn;
   }
   for (PatchMemory& m : memory_)
     if (m.active && m.seen != frames_) m.active = false;  // the contact ended: forget its anchors
@@ -237,12 +243,18 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
   // 5. The implicit step.
   StepInput in;
   in.h = h;
-  in.contact = contact + friction;
+  in.contact = contact;
   in.contact_stiffness = K;
   in.target = target;
   in.gravity = options_.gravity;
   in.target_velocity = vt;
-  step_body(body_, c, in, body_state_);
+  step_body(body_, c, in, body_state_, friction_.data(), static_cast<int>(num_friction_));
+  for (size_t i = 0; i < num_friction_; ++i) {
+    const FrictionRow& row = friction_[i];
+    const Vec6 fw = row.J.transpose() * row.force;
+    if (fw.allFinite()) friction += fw;
+    ++(row.slipping ? out.slipping : out.sticking);
+  }
   out.contact = contact;
   out.friction = friction;
   out.probe = body_state_.pose(com);

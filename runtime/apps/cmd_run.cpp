@@ -1,0 +1,398 @@
+// `hrt run SCENE.toml [--duration S] [--lockstep | --realtime] [--trace PATH]
+//  [--device-log PATH] [--json] [--quiet]`
+//
+// A haptic session (issue 9): loads the scene file (docs/scene-format.md),
+// its bundles and trajectories, opens the device, then runs the simulation
+// (hrt::Session) against the device loop (hrt::DeviceLoop):
+//   lockstep  one thread, a ManualClock: every device period one tick(), and
+//             every sim_every periods one simulation frame of h = sim_every x
+//             period; reproducible to the bit (tests, experiments);
+//   real time the device loop in its own thread at a fixed period (absolute
+//             deadlines), the simulation in this thread as fast as it can,
+//             each frame integrating the wall time since the previous one
+//             (at most max_step).
+// Writes the trace (docs/trace-format.md) and prints a summary: frames,
+// rates, device-loop jitter (real time), clamps, watchdog events. Ctrl-C (or
+// SIGTERM) stops cleanly: the device ramps to zero, the trace is written,
+// exit 130.
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <fstream>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "commands.h"
+#include "finite_json.h"
+#include "hrt/device.h"
+#include "hrt/device_loop.h"
+#include "hrt/run_config.h"
+#include "hrt/scene.h"
+#include "hrt/session.h"
+
+namespace hrt_cli {
+namespace {
+
+std::atomic<bool> g_stop{false};
+extern "C" void on_signal(int) { g_stop.store(true); }
+
+// Session time: the monotonic clock since the start of the run.
+class SessionClock : public hrt::Clock {
+ public:
+  SessionClock() : t0_(base_.now()) {}
+  double now() const noexcept override { return base_.now() - t0_; }
+
+ private:
+  hrt::SteadyClock base_;
+  double t0_;
+};
+
+struct RunFlags {
+  std::string scene;
+  double duration = -1;
+  bool lockstep = false, realtime = false, json = false, quiet = false;
+  std::string trace, device_log;
+};
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0.0;
+  std::sort(v.begin(), v.end());
+  const size_t i = std::min(v.size() - 1, static_cast<size_t>(std::ceil(q * static_cast<double>(v.size())) - 1));
+  return v[i];
+}
+
+std::unique_ptr<hrt::Device> make_device(const hrt::RunConfig& cfg) {
+  const hrt::DeviceConfig& d = cfg.device;
+  if (d.type == "scripted") {
+    hrt::Trajectory tr;
+    try {
+      tr = hrt::Trajectory::load_csv(d.trajectory, d.trajectory_prefix);
+    } catch (const hrt::TrajectoryError& e) {
+      throw Exit(kScene, std::string("error: ") + e.what());
+    }
+    return std::make_unique<hrt::ScriptedDevice>(std::move(tr), d.info);
+  }
+  if (d.type == "udp") return std::make_unique<hrt::UdpDevice>(d.udp, d.info);
+  if (d.type == "plugin") return std::make_unique<hrt::PluginDevice>(d.plugin, d.plugin_config);
+  throw Exit(kScene, "error: " + cfg.file + ": device.type: unknown device type '" + d.type + "'");
+}
+
+// A plugin reports its own limits; the scene file may override them.
+hrt::DeviceInfo effective_info(const hrt::RunConfig& cfg, const hrt::Device& dev) {
+  hrt::DeviceInfo info = dev.info();
+  const hrt::DeviceConfig& d = cfg.device;
+  if (d.type != "plugin") return d.info;
+  if (d.max_force_set) info.max_force = d.info.max_force;
+  if (d.max_torque_set) info.max_torque = d.info.max_torque;
+  if (d.max_stiffness_set) info.max_stiffness = d.info.max_stiffness;
+  if (d.max_angular_stiffness_set) info.max_angular_stiffness = d.info.max_angular_stiffness;
+  if (d.dof_actuated_set) info.dof_actuated = d.info.dof_actuated;
+  return info;
+}
+
+// The device with the scene's limits applied (a plugin's own figures
+// overridden where the file says so).
+class LimitedDevice : public hrt::Device {
+ public:
+  LimitedDevice(hrt::Device& inner, hrt::DeviceInfo info) : inner_(inner), info_(std::move(info)) {}
+  const hrt::DeviceInfo& info() const override { return info_; }
+  void open() override {}
+  void close() override {}
+  bool read(double t, hrt::DeviceSample& s) noexcept override { return inner_.read(t, s); }
+  void write(double t, const hrt::Vec6& w) noexcept override { inner_.write(t, w); }
+  void publish_poses(double t, const hrt::Pose* p, int n) noexcept override { inner_.publish_poses(t, p, n); }
+
+ private:
+  hrt::Device& inner_;
+  hrt::DeviceInfo info_;
+};
+
+int run(const RunFlags& f) {
+  hrt::RunConfig cfg;
+  try {
+    cfg = hrt::load_run_config(f.scene);
+  } catch (const hrt::SceneFileError& e) {
+    throw Exit(kScene, std::string("error: ") + e.what());
+  }
+  if (f.duration >= 0) cfg.duration = f.duration;
+  if (f.lockstep) cfg.lockstep = true;
+  if (f.realtime) cfg.lockstep = false;
+  if (cfg.lockstep && cfg.device.type != "scripted")
+    throw Exit(kUsage, "--lockstep needs a scripted device (" + cfg.file + " has device.type = \"" +
+                           cfg.device.type + "\"); see hrt run --help");
+  // Paths given on the command line are relative to the working directory.
+  if (!f.trace.empty()) cfg.trace.path = f.trace;
+  if (!f.device_log.empty()) cfg.trace.device_log = f.device_log;
+  // A device log the scene did not size (given here, or a longer --duration).
+  if (!cfg.trace.device_log.empty())
+    cfg.loop.log_capacity = std::max(cfg.loop.log_capacity,
+                                     static_cast<size_t>(std::ceil((cfg.duration + cfg.loop.watchdog_ramp) / cfg.loop.period)) + 2);
+
+  // Bundles, the scene, trajectories of kinematic objects.
+  std::vector<hrt::Model> models;
+  models.reserve(cfg.objects.size());
+  for (const hrt::ObjectConfig& o : cfg.objects) models.push_back(hrt::load_bundle(o.bundle));
+  std::vector<const hrt::Model*> ptrs;
+  for (const hrt::Model& m : models) ptrs.push_back(&m);
+  std::unique_ptr<hrt::Scene> scene;
+  try {
+    scene = std::make_unique<hrt::Scene>(ptrs, cfg.scene);
+  } catch (const std::invalid_argument& e) {
+    throw Exit(kScene, "error: " + cfg.file + ": " + e.what());
+  }
+  std::vector<hrt::Trajectory> trajectories(cfg.objects.size());
+  for (size_t b = 1; b < cfg.objects.size(); ++b) {
+    if (cfg.objects[b].trajectory.empty()) continue;
+    try {
+      trajectories[b] = hrt::Trajectory::load_csv(cfg.objects[b].trajectory);
+    } catch (const hrt::TrajectoryError& e) {
+      throw Exit(kScene, std::string("error: ") + e.what());
+    }
+  }
+
+  // The device and its limits.
+  std::unique_ptr<hrt::Device> raw;
+  try {
+    raw = make_device(cfg);
+    raw->open();
+  } catch (const hrt::DeviceError& e) {
+    throw Exit(kDevice, std::string("error: ") + e.what());
+  }
+  struct Closer {
+    hrt::Device* d;
+    ~Closer() { if (d) d->close(); }
+  } closer{raw.get()};
+  const hrt::DeviceInfo info = effective_info(cfg, *raw);
+  LimitedDevice device(*raw, info);
+
+  std::vector<hrt::Pose> initial;
+  for (const hrt::ObjectConfig& o : cfg.objects) initial.push_back(o.pose);
+  hrt::SessionOptions so = cfg.session;
+  so.max_device_stiffness = info.max_stiffness;
+  so.max_device_angular_stiffness = info.max_angular_stiffness;
+  if (cfg.coupling_from_device)
+    so.coupling = hrt::default_coupling(info, hrt::RigidBody::from_model(models[0], so.density));
+  std::unique_ptr<hrt::Session> session;
+  try {
+    session = std::make_unique<hrt::Session>(*scene, so, initial);
+  } catch (const std::invalid_argument& e) {
+    throw Exit(kScene, "error: " + cfg.file + ": " + e.what());
+  }
+  for (size_t b = 1; b < cfg.objects.size(); ++b)
+    if (!trajectories[b].empty()) session->set_trajectory(static_cast<int>(b), &trajectories[b]);
+
+  hrt::TraceWriter trace;
+  try {
+    if (!cfg.trace.path.empty()) trace.open(cfg.trace.path, cfg);
+  } catch (const std::runtime_error& e) {
+    throw Exit(kOutput, std::string("error: ") + e.what());
+  }
+
+  g_stop.store(false);
+  std::signal(SIGINT, on_signal);
+  std::signal(SIGTERM, on_signal);
+
+  hrt::ManualClock manual;
+  SessionClock wall;
+  const hrt::Clock& clock = cfg.lockstep ? static_cast<const hrt::Clock&>(manual) : wall;
+  const size_t ticks_total = static_cast<size_t>(std::llround(cfg.duration / cfg.loop.period));
+  hrt::DeviceLoop loop(device, cfg.loop, clock, cfg.lockstep ? 0 : ticks_total + 1024);
+
+  std::vector<double> sim_periods;
+  sim_periods.reserve(cfg.lockstep ? 1 : 1 << 20);
+  uint64_t frames = 0, max_patches = 0, refused = 0, fading = 0;
+  double frame_us_sum = 0;
+  std::vector<double> frame_us;
+  frame_us.reserve(1 << 16);
+  hrt::DeviceTarget tgt;
+  const auto wall0 = std::chrono::steady_clock::now();
+  std::string trace_error;
+  auto record = [&](const hrt::SessionFrame& fr) {
+    ++frames;
+    max_patches = std::max<uint64_t>(max_patches, static_cast<uint64_t>(fr.patches));
+    refused += static_cast<uint64_t>(fr.refused);
+    fading += static_cast<uint64_t>(fr.fading);
+    const double us = fr.timings.total_us + fr.dynamics_us;
+    frame_us_sum += us;
+    if (frame_us.size() < frame_us.capacity()) frame_us.push_back(us);
+    if (trace.is_open() && trace_error.empty()) {
+      try {
+        trace.row(hrt::TraceRow{&fr, &tgt});
+      } catch (const std::runtime_error& e) {
+        trace_error = e.what();
+      }
+    }
+  };
+
+  const int every = std::max(1, cfg.sim_every);
+  double display_next = 0;
+  if (cfg.lockstep) {
+    for (size_t i = 0; i <= ticks_total && !g_stop.load(); ++i) {
+      const double t = static_cast<double>(i) * cfg.loop.period;
+      manual.set(t);
+      loop.tick();
+      if (i % static_cast<size_t>(every) != 0) continue;
+      if (!loop.target(tgt)) continue;
+      const hrt::SessionFrame& fr = session->step(t, every * cfg.loop.period, tgt.target);
+      loop.publish(session->command());
+      record(fr);
+    }
+  } else {
+    loop.start();
+    double t_prev = -1;
+    while (!g_stop.load()) {
+      const double t = clock.now();
+      if (t >= cfg.duration) break;
+      if (!loop.target(tgt)) {
+        std::this_thread::sleep_for(std::chrono::microseconds(200));
+        continue;
+      }
+      const double h = t_prev < 0 ? cfg.loop.period : std::min(cfg.max_step, std::max(1e-6, t - t_prev));
+      if (t_prev >= 0 && sim_periods.size() < sim_periods.capacity()) sim_periods.push_back(t - t_prev);
+      t_prev = t;
+      const hrt::SessionFrame& fr = session->step(t, h, tgt.target);
+      loop.publish(session->command());
+      record(fr);
+      if (t >= display_next) {  // poses for a visual display (UdpDevice forwards them), ~60 Hz
+        device.publish_poses(t, session->state().poses.data(), scene->size());
+        display_next = t + 1.0 / 60.0;
+      }
+    }
+    loop.stop();
+  }
+  const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  const bool interrupted = g_stop.load();
+  std::signal(SIGINT, SIG_DFL);
+  std::signal(SIGTERM, SIG_DFL);
+
+  if (trace.is_open()) {
+    try {
+      if (!trace_error.empty()) throw std::runtime_error(trace_error);
+      trace.close();
+    } catch (const std::runtime_error& e) {
+      throw Exit(kOutput, std::string("error: ") + e.what());
+    }
+  }
+  if (!cfg.trace.device_log.empty()) {
+    try {
+      hrt::write_device_log(cfg.trace.device_log, loop);
+    } catch (const std::runtime_error& e) {
+      throw Exit(kOutput, std::string("error: ") + e.what());
+    }
+  }
+
+  // Summary.
+  const hrt::DeviceLoopStats& st = loop.stats();
+  const hrt::State& state = session->state();
+  nlohmann::json j;
+  j["scene"] = cfg.file;
+  j["mode"] = cfg.lockstep ? "lockstep" : "realtime";
+  j["device"] = {{"name", info.name}, {"type", cfg.device.type}, {"dof_actuated", info.dof_actuated}};
+  j["duration_s"] = cfg.lockstep ? static_cast<double>(ticks_total) * cfg.loop.period : wall_s;
+  j["wall_s"] = wall_s;
+  j["frames"] = frames;
+  j["simulation"] = {
+      {"rate_hz", cfg.lockstep ? 1.0 / (every * cfg.loop.period) : (wall_s > 0 ? frames / wall_s : 0.0)},
+      {"compute_rate_hz", frame_us_sum > 0 ? 1e6 * frames / frame_us_sum : 0.0},
+      {"frame_us_median", median(frame_us)},
+      {"frame_us_p99", percentile(frame_us, 0.99)},
+      {"period_ms_median", 1e3 * median(sim_periods)},
+      {"max_patches", max_patches},
+      {"refused_patch_frames", refused},
+      {"fading_patch_frames", fading}};
+  nlohmann::json dl = {{"ticks", st.ticks},
+                       {"period_s", cfg.loop.period},
+                       {"force_clamps", st.force_clamps},
+                       {"torque_clamps", st.torque_clamps},
+                       {"rate_limited", st.rate_limited},
+                       {"non_finite", st.non_finite},
+                       {"watchdog_events", st.watchdog_events},
+                       {"read_failures", st.read_failures},
+                       {"commands", st.commands},
+                       {"multirate", cfg.loop.multirate}};
+  if (!cfg.lockstep) {
+    const hrt::JitterSummary js = hrt::summarize_jitter(st);
+    dl["jitter_us"] = {{"p50", 1e6 * js.p50}, {"p99", 1e6 * js.p99}, {"max", 1e6 * js.max}, {"samples", js.samples}};
+    dl["sched_fifo"] = st.realtime;
+  }
+  j["device_loop"] = dl;
+  j["warnings"] = {{"refused_patches", state.warnings.refused_patches},
+                   {"clamped_patches", state.warnings.clamped_patches},
+                   {"patches_dropped", state.warnings.patches_dropped},
+                   {"undersampled_patches", state.warnings.depth.undersampled_patches}};
+  if (auto* udp = dynamic_cast<hrt::UdpDevice*>(raw.get())) {
+    const hrt::UdpCounters c = udp->counters();
+    j["udp"] = {{"port", udp->bound_port()}, {"received", c.received}, {"accepted", c.accepted},
+                {"bad_size", c.bad_size}, {"bad_magic", c.bad_magic}, {"bad_version", c.bad_version},
+                {"bad_type", c.bad_type}, {"non_finite", c.non_finite}, {"out_of_order", c.out_of_order},
+                {"sent_wrenches", c.sent_wrenches}, {"sent_display", c.sent_display}};
+  }
+  j["trace"] = cfg.trace.path;
+  j["interrupted"] = interrupted;
+  if (!first_non_finite(j).empty()) throw Exit(kInternal, "internal error: non-finite value in the summary");
+
+  if (f.json) {
+    std::printf("%s\n", j.dump(2).c_str());
+  } else if (!f.quiet) {
+    std::printf("hrt run %s: %s, %llu frames in %.3f s of session time (%s, %.3f s wall)\n", cfg.file.c_str(),
+                cfg.lockstep ? "lockstep" : "real time", static_cast<unsigned long long>(frames),
+                j["duration_s"].get<double>(), info.name.c_str(), wall_s);
+    std::printf("  simulation: %.0f Hz; frame compute median %.1f us, p99 %.1f us (%.0f Hz if alone); up to %llu patches\n",
+                j["simulation"]["rate_hz"].get<double>(), median(frame_us), percentile(frame_us, 0.99),
+                j["simulation"]["compute_rate_hz"].get<double>(), static_cast<unsigned long long>(max_patches));
+    std::printf("  device loop: %llu ticks at %.0f Hz, multirate %s", static_cast<unsigned long long>(st.ticks),
+                1.0 / cfg.loop.period, cfg.loop.multirate ? "on" : "off");
+    if (!cfg.lockstep)
+      std::printf("; period error p50 %.1f us, p99 %.1f us, max %.1f us (SCHED_FIFO %s)",
+                  dl["jitter_us"]["p50"].get<double>(), dl["jitter_us"]["p99"].get<double>(),
+                  dl["jitter_us"]["max"].get<double>(), st.realtime ? "on" : "off");
+    std::printf("\n  safety: %llu force clamps, %llu torque clamps, %llu rate-limited, %llu non-finite dropped, "
+                "%llu watchdog events, %llu refused patches\n",
+                static_cast<unsigned long long>(st.force_clamps), static_cast<unsigned long long>(st.torque_clamps),
+                static_cast<unsigned long long>(st.rate_limited), static_cast<unsigned long long>(st.non_finite),
+                static_cast<unsigned long long>(st.watchdog_events),
+                static_cast<unsigned long long>(state.warnings.refused_patches));
+    if (!cfg.trace.path.empty()) std::printf("  trace: %s\n", cfg.trace.path.c_str());
+  }
+  if (interrupted) {
+    std::fprintf(stderr, "hrt: interrupted; the device was ramped to zero and the trace written\n");
+    return kInterrupted;
+  }
+  return kOk;
+}
+
+}  // namespace
+
+void register_run(CLI::App& app) {
+  auto f = std::make_shared<RunFlags>();
+  CLI::App* sub = app.add_subcommand("run", "Run a haptic session from a scene file (docs/scene-format.md)");
+  sub->add_option("scene", f->scene, "Scene file (TOML)")->required();
+  sub->add_option("--duration", f->duration, "Session time to run, s (overrides run.duration)");
+  sub->add_flag("--lockstep", f->lockstep, "Fixed step, no wall clock (overrides run.lockstep)");
+  sub->add_flag("--realtime", f->realtime, "Device thread at its period, simulation as fast as it can");
+  sub->add_option("--trace", f->trace, "Trace CSV (overrides trace.path; docs/trace-format.md)");
+  sub->add_option("--device-log", f->device_log, "Per-device-tick CSV (overrides trace.device_log)");
+  sub->add_flag("--json", f->json, "Print the summary as JSON");
+  sub->add_flag("--quiet", f->quiet, "Print nothing on success");
+  sub->callback([f]() {
+    if (f->lockstep && f->realtime) throw Exit(kUsage, "--lockstep and --realtime exclude each other; see hrt run --help");
+    const int rc = run(*f);
+    if (rc != kOk) throw Exit(rc, "");
+  });
+}
+
+}  // namespace hrt_cli
