@@ -64,6 +64,17 @@ DEFAULT_QUALITY_THRESHOLD = 0.5
 #: 8 s of the 30 s budget of issue 2.
 DEFAULT_PRE_DECIMATE_ABOVE = 100_000
 DEFAULT_PRE_DECIMATE_FACES = 40_000
+#: The collapses are scale-dependent too: on a sphere of 1280 triangles cut to 300,
+#: pymeshlab's optimal placement gives the same mesh (two-sided mean distance 0.0104 radius)
+#: from 8 mm radius (diagonal 28 mm) up to 1 m, 0.0125 radius at 2 mm and 0.031 at 1 mm, for
+#: 4 times finer inputs alike (so a length, not a face size, sets it). A part whose
+#: bounding-box diagonal is below SIMPLIFY_MIN_DIAGONAL is therefore collapsed scaled by the
+#: least power of two 2^k that brings its diagonal to at least that (exact in float64 and
+#: float32; the result is scaled back by the same 2^-k, also exact), so every part below
+#: it is simplified as the same part between 25 and 50 mm. 25 mm: above the sizes where
+#: the collapse was seen to change, below the smallest golden input (the pebble, 26.4 mm),
+#: so parts of ordinary size are collapsed exactly as before.
+SIMPLIFY_MIN_DIAGONAL = 0.025
 #: Samples per side (and their seed) scoring the two vertex placements of the collapse.
 SCORE_SAMPLES = 20_000
 SCORE_SEED = 0
@@ -84,6 +95,31 @@ DEFAULT_PADDING = 2
 #: xatlas chart growing: cost limit and weight of normal deviation (xatlas defaults 2, 2).
 DEFAULT_MAX_CHART_COST = 2.0
 DEFAULT_NORMAL_DEVIATION_WEIGHT = 2.0
+#: xatlas works in the units it is given and has absolute tolerances made for game meshes
+#: of metres: it ignores every face whose area is at most FLT_EPSILON (2^-23 = 1.19e-7
+#: unit^2; xatlas.cpp AddMesh, "Zero area face"), welds vertices closer than FLT_EPSILON
+#: per coordinate and compares chart boundary lengths within kEpsilon = 1e-4 units. In
+#: meters, the 600 faces of a 2 mm-radius sphere have about 8e-8 m^2 each, so xatlas
+#: dropped nearly all of them (parked at UV (0, 0), reattached one by one: 35 charts instead
+#: of 7 and texels 4 texel sizes off the surface). hbake therefore hands xatlas the coarse
+#: mesh scaled by 2^k (exact in float32; texels_per_unit divided by the same 2^k, so the
+#: UVs are those of the mesh in meters), the least k >= 0 that gives the median coarse face
+#: at least XATLAS_MIN_MEDIAN_FACE_AREA (unit^2): 64 FLT_EPSILON = 2^-17 = 7.6e-6, a median
+#: face edge of about 4 mm = 42 kEpsilon. Then a face 64 times smaller than the median
+#: (a sliver) still clears the zero-area rule, and every part below that size is
+#: parameterized as the same part scaled into [1, 4) times that median area: the same UVs
+#: for any power-of-two scale. k = 0 above it, so parts of ordinary size keep their
+#: parameterization bit for bit: the golden bundles have medians of 227-497 FLT_EPSILON
+#: (k = 0); a 600-face sphere reaches the threshold at about 66 mm across, so smaller ones
+#: are now scaled (the 8 mm-radius sphere by 4, the 2 mm one by 16: both are parameterized
+#: as the same 32 mm sphere). Scaling up only (never down) is deliberate: xatlas's
+#: tolerances shrink relative to the part as it grows, the parts above the threshold are
+#: those that were already baked correctly, and their bundles stay as they were.
+XATLAS_AREA_EPSILON = 2.0 ** -23
+XATLAS_MIN_MEDIAN_FACE_AREA = 64 * XATLAS_AREA_EPSILON
+#: ... and the scale stops where a coordinate of the scaled mesh would pass this (xatlas's
+#: float32 cross products stay far from overflow; it fails near 1e15, see MAX_COORDINATE).
+XATLAS_MAX_SCALED_COORDINATE = 1e6
 #: The packer is rerun with a smaller texel density until the atlas fits the requested
 #: size; stop when the density is known to within this ratio.
 PACK_SEARCH_RATIO = 1.02

@@ -14,6 +14,12 @@ texels between them and
 xatlas's ``bilinear`` margin, so a bilinear lookup inside one chart never reads a texel
 another chart covers.
 
+xatlas's tolerances are absolute (it ignores faces of area below FLT_EPSILON in its
+units, among others), so a small part is handed to it scaled up by a power of two
+(``xatlas_scale``; constants.XATLAS_MIN_MEDIAN_FACE_AREA says why and how far) with the
+texel density divided by the same factor: exact in float32, the UVs are those of the part
+in meters, and a part scaled by 2^j gets the same UVs.
+
 Output UVs are per corner, normalised to the requested atlas in the convention of
 docs/bundle-format.md: texel column ``x = u W - 0.5``, row ``y = (1 - v) H - 0.5``
 (row 0 at the top, v up). xatlas's pixel grid maps to texel rows from the top, so a
@@ -52,11 +58,12 @@ def parameterize(vertices: np.ndarray, faces: np.ndarray,
     if not area > 0:
         raise BakeFailedError("cannot parameterize: the coarse mesh has no area")
 
-    best = _search(vertices, faces, settings, area, uniform=True)
+    scale = xatlas_scale(vertices, faces)
+    best = _search(vertices, faces, settings, area, uniform=True, scale=scale)
     if best is None:
         # Every chart at one density never fitted (cannot happen with xatlas's own charts,
         # which fit at a small enough density; kept so a future xatlas cannot fail a bake).
-        best = _search(vertices, faces, settings, area, uniform=False)
+        best = _search(vertices, faces, settings, area, uniform=False, scale=scale)
     if best is None:
         raise BakeFailedError(f"could not pack the charts into a {W}x{H} atlas")
     best.uvs = attach_unmapped_faces(vertices, faces, best.uvs, W, H)
@@ -64,7 +71,27 @@ def parameterize(vertices: np.ndarray, faces: np.ndarray,
     return best
 
 
-def _search(vertices, faces, settings, area, uniform):
+def xatlas_scale(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The power of two (>= 1) by which the coarse mesh is scaled for xatlas: the least
+    one that brings the median face area to XATLAS_MIN_MEDIAN_FACE_AREA, so that xatlas's
+    absolute tolerances (its zero-area rule above all) see a part of ordinary size; 1 for
+    parts already that large. Capped so that no scaled coordinate passes
+    XATLAS_MAX_SCALED_COORDINATE. Areas of a mesh scaled by 2^j are exactly 4^j times
+    these, so such a mesh gets the same scaled mesh (module doc)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    med = float(np.median(face_areas(v, np.asarray(faces, dtype=np.int64))))
+    if not med > 0 or med >= C.XATLAS_MIN_MEDIAN_FACE_AREA:
+        return 1.0
+    k = 0                       # the least k with med * 4^k >= the threshold (exact)
+    while math.ldexp(med, 2 * k) < C.XATLAS_MIN_MEDIAN_FACE_AREA:
+        k += 1
+    reach = float(np.abs(v).max())
+    while k > 0 and math.ldexp(reach, k) > C.XATLAS_MAX_SCALED_COORDINATE:
+        k -= 1
+    return math.ldexp(1.0, k)
+
+
+def _search(vertices, faces, settings, area, uniform, scale=1.0):
     """Bisection for the densest packing that fits one W x H page (see the module doc)."""
     W, H = settings.atlas_width, settings.atlas_height
     # Start from the density at which the charts, without padding or distortion, would
@@ -73,7 +100,7 @@ def _search(vertices, faces, settings, area, uniform):
     lo = hi = math.sqrt(W * H / area)
     best = None
     for _ in range(C.PACK_SEARCH_MAX_STEPS):
-        res = _pack(vertices, faces, settings, hi, uniform)
+        res = _pack(vertices, faces, settings, hi, uniform, scale)
         if res is None:
             break
         lo, best = hi, res
@@ -81,7 +108,7 @@ def _search(vertices, faces, settings, area, uniform):
     if best is None:
         for _ in range(C.PACK_SEARCH_MAX_STEPS):
             lo *= 0.7
-            res = _pack(vertices, faces, settings, lo, uniform)
+            res = _pack(vertices, faces, settings, lo, uniform, scale)
             if res is not None:
                 best = res
                 break
@@ -91,7 +118,7 @@ def _search(vertices, faces, settings, area, uniform):
     steps = 0
     while hi / lo > C.PACK_SEARCH_RATIO and steps < C.PACK_SEARCH_MAX_STEPS:
         mid = math.sqrt(lo * hi)
-        res = _pack(vertices, faces, settings, mid, uniform)
+        res = _pack(vertices, faces, settings, mid, uniform, scale)
         if res is not None:
             lo, best = mid, res
         else:
@@ -240,21 +267,25 @@ def snap_small_charts(faces: np.ndarray, uvs: np.ndarray, W: int, H: int) -> np.
 
 
 def _pack(vertices, faces, settings: ParameterizeSettings, texels_per_unit: float,
-          uniform: bool = True) -> Parameterization | None:
-    """Pack at the given density; None when the charts do not fit one W x H atlas (or,
-    with ``uniform``, when xatlas had to shrink a chart to make them fit)."""
+          uniform: bool = True, scale: float = 1.0) -> Parameterization | None:
+    """Pack at the given density (texels per meter); None when the charts do not fit one
+    W x H atlas (or, with ``uniform``, when xatlas had to shrink a chart to make them fit).
+    xatlas gets the vertices times ``scale`` (a power of two, see xatlas_scale) and the
+    density divided by it, which is the same packing in texels."""
     import xatlas
 
     W, H = settings.atlas_width, settings.atlas_height
     atlas = xatlas.Atlas()
-    atlas.add_mesh(np.ascontiguousarray(vertices, dtype=np.float32),
+    # vertices hold float32 values; times a power of two they stay exact
+    atlas.add_mesh(np.ascontiguousarray(np.asarray(vertices, dtype=np.float64) * scale,
+                                        dtype=np.float32),
                    np.ascontiguousarray(faces, dtype=np.uint32))
     co = xatlas.ChartOptions()
     co.max_cost = float(settings.max_chart_cost)
     co.normal_deviation_weight = float(settings.normal_deviation_weight)
     po = xatlas.PackOptions()
     po.resolution = W if W == H else 0
-    po.texels_per_unit = float(texels_per_unit)
+    po.texels_per_unit = float(texels_per_unit) / scale
     po.padding = int(settings.padding)
     po.bilinear = True
     po.bruteForce = False

@@ -15,12 +15,16 @@ volume, endpoint placement 0.3 %). With ``placement = "auto"`` both are computed
 coarse mesh with the smaller two-sided mean distance to the (pre-decimated) input on
 ``SCORE_SAMPLES`` seeded samples per side is kept.
 
+Both collapses have absolute thresholds, so a part smaller than SIMPLIFY_MIN_DIAGONAL is
+collapsed scaled up by a power of two (``collapse_scale``) and scaled back, exactly.
+
 The result is cleaned (degenerate, duplicate faces and unused vertices dropped),
 rounded to float32 (the precision the bundle stores, so every later stage sees the
 stored coarse mesh) and, when closed, oriented outward.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -60,17 +64,19 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, settings: SimplifySettings
     pre = 0
     v, f = vertices, faces
     placement, scores = "none", {}
+    scale = collapse_scale(vertices, faces)
     if len(faces) <= target:
         _warn(f"the input has {len(faces)} triangles, not more than the target {target}: "
               f"the coarse mesh is the input itself")
     else:
         if (settings.pre_decimate_above and len(faces) > settings.pre_decimate_above
                 and settings.pre_decimate_faces > target):
-            pv, pf = _fast_simplify(vertices, faces, settings.pre_decimate_faces)
+            pv, pf = _fast_simplify(vertices, faces, settings.pre_decimate_faces, scale)
             if not input_closed or is_closed(pf):
                 v, f, pre = pv, pf, len(pf)
         options = ("optimal", "endpoint") if settings.placement == "auto" else (settings.placement,)
-        results = {p: _quadric_collapse(v, f, settings, optimal=(p == "optimal")) for p in options}
+        results = {p: _quadric_collapse(v, f, settings, optimal=(p == "optimal"), scale=scale)
+                   for p in options}
         if len(results) > 1:
             scores = {p: _two_sided_mean(v, f, *r) for p, r in results.items()}
             placement = min(options, key=lambda p: (scores[p], options.index(p)))
@@ -111,23 +117,41 @@ def _two_sided_mean(v_ref, f_ref, v, f) -> float:
     return float(closest_points(v, f, a)[1].mean() + closest_points(v_ref, f_ref, b)[1].mean())
 
 
-def _fast_simplify(vertices, faces, target):
+def collapse_scale(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The power of two (>= 1) by which the collapses see the mesh: the least that brings
+    the bounding-box diagonal of the used vertices to SIMPLIFY_MIN_DIAGONAL, 1 above it
+    (constants.SIMPLIFY_MIN_DIAGONAL says why)."""
+    if len(faces) == 0:
+        return 1.0
+    v = np.asarray(vertices, dtype=np.float64)[np.unique(faces)]
+    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    k = 0
+    while 0 < diag and math.ldexp(diag, k) < C.SIMPLIFY_MIN_DIAGONAL:
+        k += 1
+    return math.ldexp(1.0, k)
+
+
+def _fast_simplify(vertices, faces, target, scale: float = 1.0):
     import fast_simplification
 
-    v, f = fast_simplification.simplify(vertices.astype(np.float32), faces.astype(np.int32),
-                                        target_count=int(target),
+    # times and divided by a power of two: exact (float32 keeps its values)
+    v, f = fast_simplification.simplify((vertices * scale).astype(np.float32),
+                                        faces.astype(np.int32), target_count=int(target),
                                         agg=C.PRE_DECIMATE_AGGRESSIVENESS)
-    v = np.asarray(v, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64) / scale
     f = np.asarray(f, dtype=np.int64)
     v, f, _ = repair_mesh(v, f, cancel_fins=True) if len(f) else (v, f, None)
     return v, f
 
 
-def _quadric_collapse(vertices, faces, settings: SimplifySettings, optimal: bool = True):
+def _quadric_collapse(vertices, faces, settings: SimplifySettings, optimal: bool = True,
+                      scale: float = 1.0):
+    """pymeshlab's collapse of the mesh scaled by ``scale`` (a power of two), scaled back."""
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.ascontiguousarray(vertices, dtype=np.float64),
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.ascontiguousarray(
+                                   np.asarray(vertices, dtype=np.float64) * scale),
                                face_matrix=np.ascontiguousarray(faces, dtype=np.int32)))
     try:
         ms.meshing_decimation_quadric_edge_collapse(
@@ -142,7 +166,7 @@ def _quadric_collapse(vertices, faces, settings: SimplifySettings, optimal: bool
     except pymeshlab.PyMeshLabException as exc:
         raise BakeFailedError(f"simplification failed: {exc}") from None
     m = ms.current_mesh()
-    return (np.asarray(m.vertex_matrix(), dtype=np.float64),
+    return (np.asarray(m.vertex_matrix(), dtype=np.float64) / scale,
             np.asarray(m.face_matrix(), dtype=np.int64))
 
 
