@@ -9,9 +9,9 @@ Models (meters):
 * the textured plate, the grating block, the bumpy sphere and the untextured box of the
   full-surface harness (tests/fullsurface.py);
 * ``strip``: a long grating for the sliding tests: ridges at 23 degrees to x (not a
-  multiple of 45), wavelength STRIP_L = 2 mm (2.17 mm along x), amplitude 0.1 mm,
-  48 x 10 mm, 0.125 mm cells (16 per wavelength);
-* ``tip``: a smooth sphere of radius 2 mm (its coarse mesh is curved), the stylus tip
+  multiple of 45), wavelength STRIP_L = 4 mm (4.35 mm along x), amplitude 0.1 mm,
+  96 x 10 mm, 0.125 mm cells (32 per wavelength);
+* ``tip``: a smooth sphere of radius 4 mm (its coarse mesh is curved), the ball tip
   that slides over the strip;
 * ``block``: an untextured 12 x 8 x 4 mm block and ``slab``, an untextured
   160 x 60 x 6 mm plate (the tilted-plate friction test); both centred on their origin.
@@ -33,13 +33,13 @@ from hbake import procedural as P
 REPO = FS.REPO
 MM = 1e-3
 
-STRIP_L = 2 * MM
+STRIP_L = 4 * MM
 STRIP_A = 0.1 * MM
 STRIP_ANGLE = 23.0
-STRIP_SIZE = (48 * MM, 10 * MM)
+STRIP_SIZE = (96 * MM, 10 * MM)
 STRIP_CELL = 0.125 * MM
 STRIP_THICK = 3 * MM
-TIP_R = 2 * MM
+TIP_R = 4 * MM
 BLOCK = (12 * MM, 8 * MM, 4 * MM)
 SLAB = (160 * MM, 60 * MM, 6 * MM)
 

@@ -32,6 +32,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include <Eigen/Core>
@@ -179,10 +180,17 @@ bool grid_undersamples(const Model& A, const Model& B, const Window& w);
 // keep_max: keep the largest h per texel (A), else the smallest (B). The
 // buffer is first filled with -inf (keep_max) or +inf. Heights are relative
 // to n . w.origin. Allocates nothing.
+// cull (surface mode only; NaN: none): a triangle on the costly path (its
+// lateral bound beyond the tolerance) whose points all lie below `cull`
+// (keep_max) or above it (else), relative to n . w.origin, is skipped: the
+// caller knows no texel it covers can matter (compute_depth_gradient: A's
+// triangles that cannot reach B's lowest possible point, and B's that A's
+// highest cannot reach, less the configurations' motion: they could only
+// give overlaps below zero, which make no force).
 void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m,
                        const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
                        const Window& w, int border, bool keep_max, double* out,
-                       HeightMode mode = HeightMode::surface);
+                       HeightMode mode = HeightMode::surface, double cull = std::numeric_limits<double>::quiet_NaN());
 
 // The same for `count` placements of M at once (out[k] gets placement k,
 // with border borders[k], or 0 when borders is null): triangle by triangle,
@@ -197,7 +205,8 @@ void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from
 // writing each texel's seed (seeds reserved for w.resolution + 2 border).
 void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_from_m,
                               const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
-                              const Window& w, int border, bool keep_max, double* out, HeightSeeds& seeds);
+                              const Window& w, int border, bool keep_max, double* out, HeightSeeds& seeds,
+                              double cull = std::numeric_limits<double>::quiet_NaN());
 
 // The surface-mode heights of M at a placement close to the one that made
 // `seeds` (a finite-difference configuration of Eq. 7: at most a texel or so

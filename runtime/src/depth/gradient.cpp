@@ -230,7 +230,38 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   const std::vector<uint32_t>& ta = patch.tris_a;
   const std::vector<uint32_t>& tb = patch.tris_b;
   const Vec3 &n = patch.n, &u = patch.u, &v = patch.v;
-  rasterize_heights(B, Tb, tb, n, u, v, patch.window, 0, false, scratch.hb.data(), opt.heights);
+  // Culling bounds for the surface mode's costly triangles (rasterize_heights):
+  // the lowest point B's triangles can have and the highest A's can, along
+  // n, from their corners and the surface map's reach, relative to n .
+  // origin. A triangle of A below B's lowest (or of B above A's highest) by
+  // more than the configurations can move A along n (a translation along u
+  // or v none; a rotation dth about c_A at most dth times the distance, plus
+  // two grid texels of slack) overlaps nowhere at any configuration: it could
+  // only change a maximum that is below zero, which makes no force.
+  double cull_a = std::numeric_limits<double>::quiet_NaN(), cull_b = cull_a;
+  if (opt.heights == HeightMode::surface && A.surface.ready && B.surface.ready) {
+    const double h0 = n.dot(patch.window.origin);
+    double lo_b = kInf, hi_a = -kInf, r_a = 0;
+    for (uint32_t f : tb) {
+      if (f >= B.faces.size()) continue;
+      for (int c = 0; c < 3; ++c)
+        lo_b = std::min(lo_b, n.dot(Tb * B.vertices[B.faces[f][c]]) - h0 - B.surface.faces[f].reach);
+    }
+    for (uint32_t f : ta) {
+      if (f >= A.faces.size()) continue;
+      for (int c = 0; c < 3; ++c) {
+        const Vec3 p = Ta * A.vertices[A.faces[f][c]];
+        hi_a = std::max(hi_a, n.dot(p) - h0 + A.surface.faces[f].reach);
+        r_a = std::max(r_a, (p - c_a).norm() + A.surface.faces[f].reach);
+      }
+    }
+    const double motion = std::abs(dth) * r_a + 2.0 * cell;
+    if (std::isfinite(lo_b) && std::isfinite(hi_a) && std::isfinite(motion)) {
+      cull_a = lo_b - motion;
+      cull_b = hi_a + motion;
+    }
+  }
+  rasterize_heights(B, Tb, tb, n, u, v, patch.window, 0, false, scratch.hb.data(), opt.heights, cull_b);
   const double* hb = scratch.hb.data();
   const double* ha0 = scratch.ha0.data();
   const size_t n2 = static_cast<size_t>(N) * N;
@@ -262,7 +293,7 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     // whole number m of texels along u or v moves A's surface, and so its
     // height map, by exactly m texels: those four are shifts of h_A(0),
     // rasterized with a border of m.
-    rasterize_heights_seeded(A, T[0], ta, n, u, v, patch.window, border, true, bufs[0], scratch.seeds);
+    rasterize_heights_seeded(A, T[0], ta, n, u, v, patch.window, border, true, bufs[0], scratch.seeds, cull_a);
     for (int k = 1; k < count; ++k) {
       const int c = rendered[k];
       if (shift_m > 0 && c >= 1 && c <= 4) continue;

@@ -138,6 +138,7 @@ struct Placement {
   double* seed_a = nullptr;
   float* seed_j = nullptr;
   float gx4[4] = {}, gy4[4] = {};  // gx, gy as float4 for HeightSampler::project
+  double cull = std::numeric_limits<double>::quiet_NaN();  // see rasterize_heights (depth.h)
 };
 
 Placement make_placement(const Model& M, const Eigen::Isometry3d& world_from_m, const Vec3& n, const Vec3& u,
@@ -239,6 +240,7 @@ void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, co
   }
   hlo += pl.oh - sf.reach;
   hhi += pl.oh + sf.reach;
+  if (pl.keep_max ? hhi < pl.cull : hlo > pl.cull) return;  // cannot matter (NaN: never)
   const HeightSampler& sample = pl.sample;
   auto bary = [&](double px, double py, double* b) {
     const double dx = px - x[0], dy = py - y[0];
@@ -424,11 +426,12 @@ bool usable(const Model& M, const Window& w) {
 
 void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const std::vector<uint32_t>& tris,
                        const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, int border, bool keep_max,
-                       double* out, HeightMode mode) {
+                       double* out, HeightMode mode, double cull) {
   const int S = w.resolution + 2 * border;
   std::fill(out, out + static_cast<size_t>(std::max(S, 0)) * std::max(S, 0), keep_max ? -kInf : kInf);
   if (tris.empty() || !usable(M, w)) return;
-  const Placement pl = make_placement(M, world_from_m, n, u, v, w, border, keep_max, out, mode);
+  Placement pl = make_placement(M, world_from_m, n, u, v, w, border, keep_max, out, mode);
+  pl.cull = cull;
   for (uint32_t f : tris)
     if (f < M.faces.size()) raster_triangle(M, f, pl);
 }
@@ -459,11 +462,12 @@ void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from
 
 void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_from_m, const std::vector<uint32_t>& tris,
                               const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, int border, bool keep_max,
-                              double* out, HeightSeeds& seeds) {
+                              double* out, HeightSeeds& seeds, double cull) {
   const int S = std::max(w.resolution + 2 * border, 0);
   std::fill(out, out + static_cast<size_t>(S) * S, keep_max ? -kInf : kInf);
   if (tris.empty() || !usable(M, w)) return;
   Placement pl = make_placement(M, world_from_m, n, u, v, w, border, keep_max, out, HeightMode::surface);
+  pl.cull = cull;
   pl.seed_a = seeds.a.data();
   pl.seed_j = seeds.j.data();
   for (uint32_t f : tris)

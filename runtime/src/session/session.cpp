@@ -108,7 +108,24 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
 
   // 1. Poses at the start of the frame.
   const Vec3 com = body_.center_of_mass;
-  state_.poses[0] = body_state_.pose(com);
+  // The contact is evaluated at the pose the probe is predicted to reach,
+  // x + h v (and exp(h w) q), and the step is linearized about it (below):
+  // a probe that follows a moving hand is then linearized where it will be,
+  // not one frame behind, so the device command (W0, K_eff) describes the
+  // new state. At rest the prediction is the current pose.
+  Vec6 vel;
+  vel << body_state_.v, body_state_.w;
+  BodyState predicted = body_state_;
+  // Translation only: carrying the wrench back along K is exact where K is
+  // the true Jacobian, and the rotational part of K is the weakest
+  // approximation (a flat face tilting on a flat face has a kink there, see
+  // below): predicted along it, the error would act as a negative damper.
+  Vec6 shift = Vec6::Zero();  // predicted - current, twist
+  if (options_.predict) {
+    predicted.x += h * body_state_.v;
+    shift.head<3>() = h * body_state_.v;
+  }
+  state_.poses[0] = predicted.pose(com);
   for (int b = 1; b < scene_.size(); ++b) {
     const Trajectory* tr = trajectories_[static_cast<size_t>(b)];
     state_.poses[static_cast<size_t>(b)] = tr ? tr->sample(t) : initial_[static_cast<size_t>(b)];
@@ -149,7 +166,6 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
       if (!w.allFinite()) w.setZero();
       mem->last_wrench = w;
       mem->fade = 1.0;
-      out.contact_energy += 0.5 * kp * p.delta_force * p.delta_force;
       if (p.delta_force > 0) {
         // K = -k (g g^T + delta diag(H+)): the Gauss-Newton term, plus the
         // positive part of the Hessian's diagonal from Eq. 7's second
@@ -162,6 +178,10 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
         g.head<3>() = p.grad[0] * p.u + p.grad[1] * p.v + p.grad[2] * p.n;
         g.tail<3>() = p.grad[3] * p.u + p.grad[4] * p.v + p.grad[5] * p.n;
         if (g.allFinite()) K.noalias() -= kp * g * g.transpose();
+        // Energy of the current state (the frame saw the predicted one):
+        // delta carried back along the gradient.
+        const double d_now = std::max(0.0, p.delta_force - (g.allFinite() ? g.dot(shift) : 0.0));
+        out.contact_energy += 0.5 * kp * d_now * d_now;
         const Vec3 axes[3] = {p.u, p.v, p.n};
         for (int i = 0; i < 6; ++i) {
           const double c = p.curvature[i];
@@ -193,7 +213,7 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
     // <= its smallest half-extent) the tipping moment is taken up and the
     // lever is r's in-plane part (friction still turns the probe about n);
     // a narrow region (a tip, an edge) keeps the whole lever.
-    Vec3 r = c - body_state_.x;
+    Vec3 r = c - predicted.x;
     const double rn = r.dot(p.n);
     const double reach = std::min(std::min(-p.contact_lo_u, p.contact_hi_u), std::min(-p.contact_lo_v, p.contact_hi_v));
     if (p.contact_texels > 0 && mat.mu_static * std::abs(rn) <= reach) r -= rn * p.n;
@@ -243,7 +263,10 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
   // 5. The implicit step.
   StepInput in;
   in.h = h;
-  in.contact = contact;
+  // The wrench at the predicted pose carried back to the current one along
+  // K, so that step_body's linearization (about the current state) is the
+  // linearization about the prediction: f(x) ~ f(x_pred) + K (x - x_pred).
+  in.contact = contact - K * shift;
   in.contact_stiffness = K;
   in.target = target;
   in.gravity = options_.gravity;
