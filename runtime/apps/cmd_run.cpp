@@ -1,12 +1,13 @@
-// `hrt run SCENE.toml [--duration S] [--lockstep | --realtime] [--trace PATH]
-//  [--device-log PATH] [--json] [--quiet]`
+// `hrt run SCENE.toml [--duration S] [--lockstep | --realtime] [--sched-fifo]
+//  [--trace PATH] [--device-log PATH] [--json] [--quiet]`
 //
 // A haptic session (issue 9): loads the scene file (docs/scene-format.md),
 // its bundles and trajectories, opens the device, then runs the simulation
 // (hrt::Session) against the device loop (hrt::DeviceLoop):
 //   lockstep  one thread, a ManualClock: every device period one tick(), and
 //             every sim_every periods one simulation frame of h = sim_every x
-//             period; reproducible to the bit (tests, experiments);
+//             period; every trace column but the wall-clock *_us timings
+//             reproduces to the bit (tests, experiments);
 //   real time the device loop in its own thread at a fixed period (absolute
 //             deadlines), the simulation in this thread as fast as it can,
 //             each frame integrating the wall time since the previous one
@@ -57,7 +58,7 @@ class SessionClock : public hrt::Clock {
 struct RunFlags {
   std::string scene;
   double duration = -1;
-  bool lockstep = false, realtime = false, json = false, quiet = false;
+  bool lockstep = false, realtime = false, json = false, quiet = false, sched_fifo = false;
   std::string trace, device_log;
 };
 
@@ -131,6 +132,7 @@ int run(const RunFlags& f) {
   if (f.duration >= 0) cfg.duration = f.duration;
   if (f.lockstep) cfg.lockstep = true;
   if (f.realtime) cfg.lockstep = false;
+  if (f.sched_fifo) cfg.loop.realtime = true;
   if (cfg.lockstep && cfg.device.type != "scripted")
     throw Exit(kUsage, "--lockstep needs a scripted device (" + cfg.file + " has device.type = \"" +
                            cfg.device.type + "\"); see hrt run --help");
@@ -386,6 +388,8 @@ void register_run(CLI::App& app) {
   sub->add_flag("--realtime", f->realtime, "Device thread at its period, simulation as fast as it can");
   sub->add_option("--trace", f->trace, "Trace CSV (overrides trace.path; docs/trace-format.md)");
   sub->add_option("--device-log", f->device_log, "Per-device-tick CSV (overrides trace.device_log)");
+  sub->add_flag("--sched-fifo", f->sched_fifo,
+                "Ask for SCHED_FIFO for the device thread (overrides loop.realtime; falls back and says so)");
   sub->add_flag("--json", f->json, "Print the summary as JSON");
   sub->add_flag("--quiet", f->quiet, "Print nothing on success");
   sub->callback([f]() {

@@ -8,6 +8,7 @@
 // hrt/trajectory.h).
 #include <algorithm>
 #include <cerrno>
+#include <sys/stat.h>
 #include <charconv>
 #include <cstdio>
 #include <cstring>
@@ -88,6 +89,13 @@ class Line {
 }
 
 std::FILE* open_partial(const std::string& path, const std::string& partial) {
+  // The output replaces PATH by a rename: PATH must be absent or a regular
+  // file. `--trace /dev/null` would otherwise replace the device node with a
+  // regular file (found while benchmarking, as root).
+  struct stat st;
+  if (::lstat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode))
+    throw std::runtime_error(path + ": exists and is not a regular file (the output is written to " + partial +
+                             " and renamed over it); give a file path, or no trace");
   std::FILE* f = std::fopen(partial.c_str(), "wb");
   if (!f) io_error(path, "cannot open " + partial + " for writing", errno);
   return f;
