@@ -19,4 +19,11 @@ for mode in normal fifo; do
     "$HRT" run examples/session/scene.toml --realtime --duration "$DURATION" $flags --json --trace out/session/bench-trace.csv 2>/dev/null || true
   done | .venv/bin/python examples/session/summarize.py "$mode"
 done
+# The platform's own wake-up latency, for comparison (rt-tests' cyclictest, when installed:
+# `apt-get install rt-tests`): a thread sleeping to absolute 1 ms deadlines and nothing else.
+if command -v cyclictest >/dev/null; then
+  for p in 0 80; do
+    echo "cyclictest (priority $p, 5000 loops at 1 ms): $(cyclictest -m -p $p -i 1000 -l 5000 -q 2>/dev/null | tail -1 | sed 's/.*Min:/Min:/') us"
+  done
+fi
 echo "load average after: $(cut -d' ' -f1-3 /proc/loadavg)"
