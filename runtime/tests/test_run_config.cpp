@@ -16,6 +16,7 @@
 
 #include "hrt/run_config.h"
 #include "hrt/trajectory.h"
+#include "trace_spec.h"
 
 namespace {
 
@@ -560,35 +561,7 @@ TEST_F(RunConfig, UnreadableFileIsAnError) {
 // Trace (docs/trace-format.md)
 // ---------------------------------------------------------------------------
 
-// The first cells of the table under the heading `heading` of the spec,
-// backticks stripped: the spec's column list.
-std::vector<std::string> spec_columns(const std::string& heading) {
-  std::ifstream in(HRT_SOURCE_DIR "/../docs/trace-format.md");
-  EXPECT_TRUE(in.good()) << "docs/trace-format.md not found";
-  std::string line;
-  bool in_section = false, in_table = false;
-  int rows = 0;
-  std::vector<std::string> out;
-  while (std::getline(in, line)) {
-    if (line.rfind("## ", 0) == 0) {
-      if (in_section) break;
-      in_section = line == heading;
-      continue;
-    }
-    if (!in_section) continue;
-    if (line.rfind("|", 0) != 0) {
-      if (in_table) break;
-      continue;
-    }
-    in_table = true;
-    if (++rows <= 2) continue;  // the table's header and its |---| line
-    const size_t a = line.find('`'), b = line.find('`', a + 1);
-    EXPECT_NE(b, std::string::npos) << line;
-    if (b == std::string::npos) continue;
-    out.push_back(line.substr(a + 1, b - a - 1));
-  }
-  return out;
-}
+std::vector<std::string> spec_columns(const std::string& heading) { return hrt_test::trace_spec_columns(heading); }
 
 std::vector<std::string> split(const std::string& s, char sep) {
   std::vector<std::string> out;
@@ -827,12 +800,25 @@ TEST_F(Trace, IoErrorsNameThePath) {
     EXPECT_EQ(std::string(e.what()).rfind(path + ": ", 0), 0u) << e.what();
   }
   EXPECT_FALSE(w.is_open());
-  // The rename fails (PATH is a non-empty folder): close() says so and
-  // leaves neither the partial nor anything at PATH but the folder.
+  // PATH exists and is not a regular file (a device such as /dev/null, a
+  // folder): open() refuses it, rather than renaming over it at close().
+  for (const std::string special : {std::string("/dev/null"), dir_.string()}) {
+    hrt::TraceWriter w3;
+    try {
+      w3.open(special, hrt::RunConfig{});
+      FAIL() << special << ": no error";
+    } catch (const std::runtime_error& e) {
+      EXPECT_EQ(std::string(e.what()).rfind(special + ": exists and is not a regular file", 0), 0u) << e.what();
+    }
+    EXPECT_FALSE(fs::exists(special + ".partial"));
+  }
+  // The rename fails (PATH became a non-empty folder while the trace was
+  // written): close() says so and leaves neither the partial nor anything at
+  // PATH but the folder.
   const fs::path folder = dir_ / "taken.csv";
-  fs::create_directories(folder / "inside");
   hrt::TraceWriter w2;
   w2.open(folder.string(), hrt::RunConfig{});
+  fs::create_directories(folder / "inside");
   try {
     w2.close();
     FAIL() << "no error";

@@ -32,6 +32,7 @@
 #include "hrt/session.h"
 #include "hrt/trajectory.h"
 #include "test_contact_models.h"
+#include "trace_spec.h"
 
 namespace fs = std::filesystem;
 
@@ -70,35 +71,7 @@ void lower_bottom_heights(hrt::Model& a, float by) {
   hrt::prepare_surface_map(a);
 }
 
-// The first cells of the table under `heading` in docs/trace-format.md
-// (backticks stripped): the spec's column list (as test_run_config.cpp reads it).
-std::vector<std::string> spec_table_columns(const std::string& heading) {
-  std::ifstream in(HRT_SOURCE_DIR "/../docs/trace-format.md");
-  EXPECT_TRUE(in.good()) << "docs/trace-format.md not found";
-  std::string line;
-  bool in_section = false, in_table = false;
-  int rows = 0;
-  std::vector<std::string> out;
-  while (std::getline(in, line)) {
-    if (line.rfind("## ", 0) == 0) {
-      if (in_section) break;
-      in_section = line == heading;
-      continue;
-    }
-    if (!in_section) continue;
-    if (line.rfind("|", 0) != 0) {
-      if (in_table) break;
-      continue;
-    }
-    in_table = true;
-    if (++rows <= 2) continue;  // the table's header and its |---| line
-    const size_t a = line.find('`'), b = line.find('`', a + 1);
-    EXPECT_NE(b, std::string::npos) << line;
-    if (b == std::string::npos) continue;
-    out.push_back(line.substr(a + 1, b - a - 1));
-  }
-  return out;
-}
+std::vector<std::string> spec_table_columns(const std::string& heading) { return hrt_test::trace_spec_columns(heading); }
 
 std::vector<std::string> split(const std::string& s, char sep) {
   std::vector<std::string> out(1);

@@ -74,6 +74,12 @@ struct StepInput {
   Vec3 gravity = Vec3::Zero();     // m/s^2 (default off: a haptic probe is held)
 };
 
+// Rotation vector (angle times axis) of a unit quaternion, the short way
+// (q and -q are the same rotation; the short one keeps |angle| <= pi), and
+// its inverse, the quaternion of a rotation vector.
+Vec3 rotation_vector(Eigen::Quaterniond q);
+Eigen::Quaterniond exp_rotation(const Vec3& r);
+
 // The coupling wrench on the body at state s towards `target` (world, torque
 // about the centre of mass).
 Vec6 coupling_wrench(const RigidBody& body, const Coupling& c, const BodyState& s, const Pose& target,

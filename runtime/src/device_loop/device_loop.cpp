@@ -6,6 +6,7 @@
 // arithmetic (no heap temporaries), std::nth_element on a std::array and
 // the two TripleBuffers.
 #include "hrt/device_loop.h"
+#include "hrt/dynamics.h"
 
 #include <pthread.h>
 #include <sys/prctl.h>
@@ -20,16 +21,6 @@
 namespace hrt {
 
 namespace {
-
-// Rotation vector (angle times axis) of a unit quaternion, the short way
-// (q and -q are the same rotation; the short one keeps |angle| <= pi).
-Vec3 rotation_vector(Eigen::Quaterniond q) {
-  if (q.w() < 0) q.coeffs() = -q.coeffs();
-  const Vec3 im = q.vec();
-  const double s = im.norm();
-  if (s < 1e-12) return 2.0 * im;  // sin(a/2) ~ a/2
-  return 2.0 * std::atan2(s, q.w()) * im / s;
-}
 
 // 1 -> 0 linearly over T from x = 0 (T <= 0: a step at x > 0).
 double ramp_down(double x, double T) {

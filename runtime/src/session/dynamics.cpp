@@ -8,8 +8,6 @@
 
 namespace hrt {
 
-namespace {
-
 // Rotation vector of a unit quaternion (angle times axis), the short way.
 Vec3 rotation_vector(Eigen::Quaterniond q) {
   if (q.w() < 0) q.coeffs() = -q.coeffs();
@@ -24,8 +22,6 @@ Eigen::Quaterniond exp_rotation(const Vec3& r) {
   if (a < 1e-12) return Eigen::Quaterniond(1.0, 0.5 * r.x(), 0.5 * r.y(), 0.5 * r.z()).normalized();
   return Eigen::Quaterniond(Eigen::AngleAxisd(a, r / a));
 }
-
-}  // namespace
 
 RigidBody RigidBody::from_model(const Model& m, double density) {
   RigidBody b;

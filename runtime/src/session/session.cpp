@@ -12,21 +12,6 @@ namespace hrt {
 
 namespace {
 
-Mat3 skew(const Vec3& r) {
-  Mat3 m;
-  m << 0, -r.z(), r.y(), r.z(), 0, -r.x(), -r.y(), r.x(), 0;
-  return m;
-}
-
-// Rotation vector (angle times axis) of a unit quaternion, the short way.
-Vec3 rotation_vector(Eigen::Quaterniond q) {
-  if (q.w() < 0) q.coeffs() = -q.coeffs();
-  const Vec3 im = q.vec();
-  const double s = im.norm();
-  if (s < 1e-12) return 2.0 * im;
-  return 2.0 * std::atan2(s, q.w()) * im / s;
-}
-
 double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - t0).count();
 }
@@ -138,7 +123,6 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
 
   // 3-4. Materials, fades, friction.
   const double k_scene = scene_.options().force.stiffness;
-  const Eigen::Isometry3d TA = state_.poses[0].iso();
   Vec6 contact = Vec6::Zero(), friction = Vec6::Zero();
   num_friction_ = 0;
   Mat6 K = Mat6::Zero();  // d(wrench)/d(twist), negative semi-definite
