@@ -17,6 +17,7 @@ enum ExitCode : int {
   kScene = 4,         // hrt run: bad scene file or trajectory (file, key, what)
   kDevice = 5,        // hrt run: the device could not be opened (bind, plugin, ...)
   kOutput = 6,        // hrt run: the trace or device log could not be written
+  kGl = 7,            // no usable OpenGL 4.5 core context (EGL): the message names what is missing
   kInternal = 70,     // a bug: please report
   kInterrupted = 130, // hrt run: Ctrl-C / SIGTERM (device ramped to zero, trace written)
 };
@@ -31,5 +32,6 @@ void register_check(CLI::App& app);  // hrt check BUNDLE: load, verify, summariz
 void register_query(CLI::App& app);  // hrt query A B --pose-a ... --pose-b ...
 void register_bench(CLI::App& app);  // hrt bench
 void register_run(CLI::App& app);    // hrt run SCENE.toml
+void register_gl_info(CLI::App& app);  // hrt gl-info
 
 }  // namespace hrt_cli

@@ -11,7 +11,7 @@
 
 namespace {
 
-// "check, query, bench, run": the registered subcommands, in order.
+// "check, query, bench, run, gl-info": the registered subcommands, in order.
 std::string command_list(CLI::App& app) {
   std::string out;
   for (const CLI::App* sub : app.get_subcommands([](const CLI::App*) { return true; }))
@@ -47,6 +47,7 @@ int main(int argc, char** argv) {
   hrt_cli::register_query(app);
   hrt_cli::register_bench(app);
   hrt_cli::register_run(app);
+  hrt_cli::register_gl_info(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

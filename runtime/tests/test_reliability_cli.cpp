@@ -75,9 +75,9 @@ TEST_F(HrtCli, QueryNumbersAreStrict) {
 }
 
 TEST_F(HrtCli, UnknownCommandIsNamed) {
-  expect_usage({"bogus"}, "unknown command 'bogus' (commands: check, query, bench, run)");
+  expect_usage({"bogus"}, "unknown command 'bogus' (commands: check, query, bench, run, gl-info)");
   expect_usage({"bogus", "--json"}, "unknown command 'bogus'");
-  expect_usage({}, "a command is required (check, query, bench, run)");
+  expect_usage({}, "a command is required (check, query, bench, run, gl-info)");
   expect_usage({"check"}, "check");
   expect_usage({"check", pebble_, "--bogus"}, "--bogus");
   EXPECT_EQ(run_hrt({"--help"}).status, 0);
