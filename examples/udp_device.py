@@ -101,6 +101,21 @@ def path_poses(path="circle", duration=5.0, rate=1000.0, radius=0.02, height=0.0
     return out
 
 
+def drain_wrenches(sock, out: list) -> None:
+    """Reads every datagram waiting on the non-blocking socket `sock` and appends the
+    valid wrench packets to `out` (decode_wrench dicts); others are ignored."""
+    while True:
+        try:
+            data = sock.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return
+        except ConnectionRefusedError:  # an ICMP error from an earlier send: nobody listening yet
+            continue
+        w = decode_wrench(data)
+        if w is not None:
+            out.append(w)
+
+
 def run_client(host, port, poses, rate=1000.0, linger=0.2, bind=("127.0.0.1", 0), on_wrench=None):
     """Sends `poses` ((t, position, quaternion) or (t, position, quaternion,
     buttons, clutch) tuples) to host:port at `rate` Hz (absolute deadlines),
@@ -113,18 +128,11 @@ def run_client(host, port, poses, rate=1000.0, linger=0.2, bind=("127.0.0.1", 0)
     wrenches = []
 
     def drain():
-        while True:
-            try:
-                data = sock.recv(65536)
-            except (BlockingIOError, InterruptedError):
-                return
-            except ConnectionRefusedError:  # an ICMP error from an earlier send: nobody listening yet
-                continue
-            w = decode_wrench(data)
-            if w is not None:
-                wrenches.append(w)
-                if on_wrench:
-                    on_wrench(w)
+        n = len(wrenches)
+        drain_wrenches(sock, wrenches)
+        if on_wrench:
+            for w in wrenches[n:]:
+                on_wrench(w)
 
     try:
         period = 1.0 / rate

@@ -222,16 +222,7 @@ def test_udp_device_end_to_end(models, hrt, tmp_path):
     seq = 0
 
     def drain():
-        while True:
-            try:
-                data = sock.recv(65536)
-            except (BlockingIOError, InterruptedError):
-                return
-            except ConnectionRefusedError:     # a pose sent before hrt bound its socket
-                continue
-            w = U.decode_wrench(data)
-            if w is not None:
-                wrenches.append(w)
+        U.drain_wrenches(sock, wrenches)
 
     def send(z, t):
         nonlocal seq
@@ -611,6 +602,12 @@ def test_device_and_output_errors(models, hrt, tmp_path):
         _assert_no_output(t)
         # --lockstep needs a scripted device: a usage error (2), before anything is opened.
         _assert_failed(hrt_run(hrt, scene, "--lockstep"), 2, "--lockstep", "scripted")
+        _assert_no_output(t)
+    # A --duration that is not a positive number: a usage error (2), nothing run.
+    t = _base(models, tmp_path)
+    scene = write_scene(tmp_path, "duration", t)
+    for bad in ("-3", "0", "soon"):
+        _assert_failed(hrt_run(hrt, scene, "--duration", bad), 2, "--duration")
         _assert_no_output(t)
     # A trace that cannot be written although its folder exists (/proc takes no new
     # files, even for root, for whom permission bits would not stop anything): exit 6.

@@ -241,7 +241,6 @@ int run(const RunFlags& f) {
   };
 
   const int every = std::max(1, cfg.sim_every);
-  double display_next = 0;
   if (cfg.lockstep) {
     for (size_t i = 0; i <= ticks_total && !g_stop.load(); ++i) {
       const double t = static_cast<double>(i) * cfg.loop.period;
@@ -269,10 +268,9 @@ int run(const RunFlags& f) {
       const hrt::SessionFrame& fr = session->step(t, h, tgt.target);
       loop.publish(session->command());
       record(fr);
-      if (t >= display_next) {  // poses for a visual display (UdpDevice forwards them), ~60 Hz
-        device.publish_poses(t, session->state().poses.data(), scene->size());
-        display_next = t + 1.0 / 60.0;
-      }
+      // Poses for a visual display: the device forwards them at its own
+      // display rate (UdpDevice: [device] display_rate), others ignore them.
+      device.publish_poses(t, session->state().poses.data(), scene->size());
     }
     loop.stop();
   }
@@ -383,7 +381,18 @@ void register_run(CLI::App& app) {
   auto f = std::make_shared<RunFlags>();
   CLI::App* sub = app.add_subcommand("run", "Run a haptic session from a scene file (docs/scene-format.md)");
   sub->add_option("scene", f->scene, "Scene file (TOML)")->required();
-  sub->add_option("--duration", f->duration, "Session time to run, s (overrides run.duration)");
+  sub->add_option("--duration", f->duration, "Session time to run, s (overrides run.duration)")
+      ->check(CLI::Validator(
+          [](std::string& v) {
+            try {
+              size_t used = 0;
+              const double d = std::stod(v, &used);
+              if (used == v.size() && std::isfinite(d) && d > 0) return std::string();
+            } catch (const std::exception&) {
+            }
+            return "'" + v + "' is not a positive number of seconds";
+          },
+          "SECONDS > 0"));
   sub->add_flag("--lockstep", f->lockstep, "Fixed step, no wall clock (overrides run.lockstep)");
   sub->add_flag("--realtime", f->realtime, "Device thread at its period, simulation as fast as it can");
   sub->add_option("--trace", f->trace, "Trace CSV (overrides trace.path; docs/trace-format.md)");
