@@ -1,6 +1,7 @@
 // `hrt bench --a A.hbundle --b B.hbundle --pose-a ... [--pose-b ...]
 //  [--settle DX DY DZ --settle-depth D] [--path DX DY DZ] [--frames F]
-//  [--resolutions 32,50,64,128] [--copies 1,2,4,...,16] [--json]`
+//  [--resolutions 32,50,64,128] [--copies 1,2,4,...,16]
+//  [--backend cpu|gl|auto [--gl-search ...]] [--json]`
 //
 // Times haptic frames (Sec. 3.3: collision, clustering, texture force) of a
 // probe A moving against B, the way the paper measured a file scraping a CAD
@@ -17,7 +18,12 @@
 // --settle first moves A from --pose-a along a direction until its deepest
 // patch penetrates by --settle-depth (bisection), so a script does not need to
 // know the exact contact height of two baked bundles.
-// One thread; the machine is printed with the table.
+// With --backend gl (or auto choosing gl) the depth runs on the GL backend,
+// profiled (GlDepthOptions::profile: a wait after each stage, so the split
+// adds up to the stage's cost), and a fourth table gives the medians of its
+// split (upload, draw, resolve, reduce, read-back, total) and round trips
+// per N and patch count, on the path and for the copies.
+// One thread; the machine (and the GL renderer) is printed with the table.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -25,6 +31,7 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <set>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -127,16 +134,26 @@ hrt::Pose settle(const hrt::Scene& scene, const hrt::Pose& start, const hrt::Pos
   return translated(start, hi * dir);
 }
 
+// The GL backend's split of one frame (GlDepthStats, profiled).
+struct GlSplit {
+  double upload, draw, resolve, reduce, readback, total;
+  int round_trips;
+};
+
 struct FrameRecord {
   double collision, clustering, force, total;
   int pairs, patches;
+  bool has_gl;  // the GL backend evaluated this frame (it had patches)
+  GlSplit gl;
 };
 
 // Runs the sweep: `passes` back-and-forth passes of `frames` poses; records
-// every frame after the first pass.
+// every frame after the first pass. `backend` (non-null: the GL one) runs
+// the depth and its stats are recorded per frame.
 std::vector<FrameRecord> sweep(const hrt::Scene& scene, const std::vector<hrt::Pose>& base, const hrt::Vec3& path,
-                               int frames, int passes, hrt::Warnings* warnings) {
+                               int frames, int passes, hrt::gl::GlDepthBackend* backend, hrt::Warnings* warnings) {
   hrt::State st(scene);
+  st.depth_backend = backend;
   st.poses = base;
   std::vector<FrameRecord> out;
   out.reserve(static_cast<size_t>(frames) * static_cast<size_t>(std::max(passes - 1, 1)));
@@ -145,10 +162,18 @@ std::vector<FrameRecord> sweep(const hrt::Scene& scene, const std::vector<hrt::P
       const double t = frames > 1 ? static_cast<double>(f) / (frames - 1) : 0.0;
       const double s = (pass % 2 == 0) ? t : 1.0 - t;  // back and forth: consecutive poses stay close
       st.poses[0] = translated(base[0], s * path);
-      hrt::frame(scene, st);
+      frame_or_usage(scene, st);
       if (pass == 0 && passes > 1) continue;
-      out.push_back({st.timings.collision_us, st.timings.clustering_us, st.timings.force_us, st.timings.total_us,
-                     st.num_pairs, st.num_patches});
+      FrameRecord r{st.timings.collision_us, st.timings.clustering_us, st.timings.force_us, st.timings.total_us,
+                    st.num_pairs, st.num_patches, false, {}};
+      // frame() calls the backend only for a frame with patches: otherwise
+      // its stats are still the previous frame's.
+      if (backend && st.num_patches > 0) {
+        const hrt::gl::GlDepthStats& g = backend->stats();
+        r.has_gl = true;
+        r.gl = {g.upload_us, g.draw_us, g.resolve_us, g.reduce_us, g.readback_us, g.total_us, g.round_trips};
+      }
+      out.push_back(r);
     }
   }
   if (warnings) *warnings = st.warnings;
@@ -209,6 +234,48 @@ nlohmann::json summary_json(const Summary& s) {
           {"patches", {{"min", s.patches_min}, {"median", s.patches_med}, {"max", s.patches_max}}}};
 }
 
+// Medians of the GL split over the frames the backend evaluated.
+struct GlSummary {
+  size_t frames = 0;
+  double upload, draw, resolve, reduce, readback, total, round_trips;
+};
+
+template <typename Pred>
+GlSummary summarize_gl(const std::vector<FrameRecord>& r, Pred keep) {
+  std::vector<double> u, d, rs, rd, rb, t, rt;
+  for (const FrameRecord& x : r) {
+    if (!x.has_gl || !keep(x)) continue;
+    u.push_back(x.gl.upload);
+    d.push_back(x.gl.draw);
+    rs.push_back(x.gl.resolve);
+    rd.push_back(x.gl.reduce);
+    rb.push_back(x.gl.readback);
+    t.push_back(x.gl.total);
+    rt.push_back(x.gl.round_trips);
+  }
+  return {t.size(), median(u), median(d), median(rs), median(rd), median(rb), median(t), median(rt)};
+}
+GlSummary summarize_gl(const std::vector<FrameRecord>& r) {
+  return summarize_gl(r, [](const FrameRecord&) { return true; });
+}
+
+nlohmann::json gl_summary_json(const GlSummary& g) {
+  return {{"frames", g.frames},
+          {"upload_us", num_or_null(g.upload)},
+          {"draw_us", num_or_null(g.draw)},
+          {"resolve_us", num_or_null(g.resolve)},
+          {"reduce_us", num_or_null(g.reduce)},
+          {"readback_us", num_or_null(g.readback)},
+          {"total_us", num_or_null(g.total)},
+          {"round_trips", num_or_null(g.round_trips)}};
+}
+
+// One row of the GL split table.
+void print_gl_row(const std::string& scene, int n, const std::string& patches, const GlSummary& g) {
+  std::printf("%-8s %5d %8s %7zu %9.1f %9.1f %9.1f %9.1f %10.1f %9.1f %6.0f\n", scene.c_str(), n, patches.c_str(),
+              g.frames, g.upload, g.draw, g.resolve, g.reduce, g.readback, g.total, g.round_trips);
+}
+
 std::string pose_args(const hrt::Pose& p) {
   char buf[256];
   const Eigen::Quaterniond& q = p.rotation;
@@ -237,6 +304,7 @@ std::vector<int> int_list(const std::vector<std::string>& args, const std::strin
 }
 
 void run_bench(BenchOptions o) {
+  o.scene.check_backend_flags();
   if (!o.resolutions_arg.empty()) o.resolutions = int_list(o.resolutions_arg, "--resolutions");
   if (!o.copies_arg.empty()) o.copies = int_list(o.copies_arg, "--copies");
   if (o.a.empty() || o.b.empty())
@@ -266,6 +334,13 @@ void run_bench(BenchOptions o) {
   const hrt::Model& B = *models[1];
   hrt::SceneOptions so = o.scene.scene_options();
 
+  // The depth backend, for every scene below (they all hold A and copies of
+  // B, the models it was made for). auto's probe runs at the first N timed.
+  // --settle stays on the CPU code: it places A, it is not timed.
+  hrt::SceneOptions probe_options = so;
+  probe_options.force.resolution = o.resolutions.front();
+  const CliBackend backend = select_depth_backend(o.scene, {&A, &B}, probe_options, true, true);
+
   if (!o.settle.empty()) {
     const hrt::Vec3 dir(o.settle[0], o.settle[1], o.settle[2]);
     if (!(dir.norm() > 0)) throw Exit(kUsage, "--settle: the direction must not be zero");
@@ -278,6 +353,15 @@ void run_bench(BenchOptions o) {
   const std::string machine = machine_name();
   const unsigned cores = std::thread::hardware_concurrency();
   js["machine"] = {{"cpu", machine}, {"cores", cores}, {"threads_used", 1}, {"compiler", __VERSION__}};
+  // Only with the GL backend: the CPU output stays as it was.
+  if (backend.gl) {
+    const hrt::gl::GlDepthOptions& g = backend.gl->options();
+    js["machine"]["backend"] = "gl";
+    js["machine"]["renderer"] = backend.renderer();
+    js["machine"]["gl_platform"] = backend.selection.context->info().platform;
+    js["machine"]["gl_search"] = g.search == hrt::gl::MaxSearch::occlusion ? "occlusion" : "compute";
+    js["machine"]["occlusion_steps"] = g.occlusion_steps;
+  }
   js["a"] = {{"bundle", A.path}, {"pieces", A.pieces.size()}, {"triangles", A.faces.size()}};
   js["b"] = {{"bundle", B.path}, {"pieces", B.pieces.size()}, {"triangles", B.faces.size()}};
   js["pose_a"] = pose_args(pose_a);
@@ -289,7 +373,8 @@ void run_bench(BenchOptions o) {
   if (!o.json) {
     std::printf("hrt bench: A = %s (%zu pieces, %zu triangles), B = %s (%zu pieces, %zu triangles)\n", A.path.c_str(),
                 A.pieces.size(), A.faces.size(), B.path.c_str(), B.pieces.size(), B.faces.size());
-    std::printf("machine    %s, %u logical cores, one thread used; %s\n", machine.c_str(), cores, "compiler " __VERSION__);
+    std::printf("machine    %s, %u logical cores, one thread used; %s%s\n", machine.c_str(), cores, "compiler " __VERSION__,
+                backend.gl ? ("; depth backend " + backend.describe() + ", profiled").c_str() : "");
     std::printf("pose A     --pose-a %s   (B: --pose-b %s)\n", pose_args(pose_a).c_str(), pose_args(pose_b).c_str());
     std::printf("path       A moves by (%.4g, %.4g, %.4g) m over %d frames, back and forth, %d passes (first = warm-up)\n\n",
                 path.x(), path.y(), path.z(), o.frames, o.passes);
@@ -307,7 +392,7 @@ void run_bench(BenchOptions o) {
     so.force.resolution = n;
     const auto scene = make_scene({&A, &B}, so);
     hrt::Warnings w;
-    records[n] = sweep(*scene, {pose_a, pose_b}, path, o.frames, o.passes, &w);
+    records[n] = sweep(*scene, {pose_a, pose_b}, path, o.frames, o.passes, backend.gl, &w);
     const Summary s = summarize(records[n]);
     nlohmann::json j = summary_json(s);
     j["resolution"] = n;
@@ -319,6 +404,7 @@ void run_bench(BenchOptions o) {
                      {"fallback_normals", w.fallback_normals},
                      {"refused_patches", w.refused_patches},
                      {"clamped_patches", w.clamped_patches}};
+    if (backend.gl) j["gl"] = gl_summary_json(summarize_gl(records[n]));
     jpath.push_back(j);
     if (!o.json) {
       char pairs[32], patches[32];
@@ -360,6 +446,11 @@ void run_bench(BenchOptions o) {
       const double frc = it == per_n.end() ? NAN : median(bins_force[k][n]);
       jb["total_us"][std::to_string(n)] = num_or_null(tot);
       jb["force_us"][std::to_string(n)] = num_or_null(frc);
+      if (backend.gl && it != per_n.end()) {
+        const int patches = k;
+        jb["gl"][std::to_string(n)] =
+            gl_summary_json(summarize_gl(records[n], [patches](const FrameRecord& r) { return r.patches == patches; }));
+      }
       if (!o.json) std::printf("  %8.1f (%7.1f)", tot, frc);
     }
     if (!o.json) std::printf("\n");
@@ -376,6 +467,12 @@ void run_bench(BenchOptions o) {
     std::printf("\n");
   }
   const int copy_frames = std::max(1, o.frames / 5);
+  struct CopiesGl {  // the GL split of one (K, N), printed after the copies table
+    int k, n;
+    double patches_med;
+    GlSummary gl;
+  };
+  std::vector<CopiesGl> copies_gl;
   for (int k : o.copies) {
     std::vector<const hrt::Model*> objects{&A};
     std::vector<hrt::Pose> base{pose_a};
@@ -391,12 +488,19 @@ void run_bench(BenchOptions o) {
     for (int n : o.resolutions) {
       so.force.resolution = n;
       const auto scene = make_scene(objects, so);
-      const Summary s = summarize(sweep(*scene, base, path / std::max(1, k), copy_frames, o.passes, nullptr));
+      const std::vector<FrameRecord> rec =
+          sweep(*scene, base, path / std::max(1, k), copy_frames, o.passes, backend.gl, nullptr);
+      const Summary s = summarize(rec);
       if (!have_first) {
         first = s;
         have_first = true;
       }
       jk["results"][std::to_string(n)] = summary_json(s);
+      if (backend.gl) {
+        const GlSummary g = summarize_gl(rec);
+        jk["results"][std::to_string(n)]["gl"] = gl_summary_json(g);
+        copies_gl.push_back({k, n, s.patches_med, g});
+      }
       char cell[64];
       std::snprintf(cell, sizeof cell, "  %8.1f (%7.1f)", s.total, s.force);
       line += cell;
@@ -405,6 +509,27 @@ void run_bench(BenchOptions o) {
     if (!o.json) std::printf("%4d %7.0f %8.0f%s\n", k, first.pairs_med, first.patches_med, line.c_str());
   }
   js["copies"] = jcopies;
+
+  // 4. The GL backend's split (profiled), per N and patch count.
+  if (backend.gl && !o.json) {
+    std::printf("\nGL depth backend split: median per frame with patches, us (profiled: a wait after each stage)\n");
+    std::printf("%-8s %5s %8s %7s %9s %9s %9s %9s %10s %9s %6s\n", "scene", "N", "patches", "frames", "upload", "draw",
+                "resolve", "reduce", "read-back", "total", "trips");
+    for (int n : o.resolutions) {
+      std::set<int> counts;
+      for (const FrameRecord& r : records[n])
+        if (r.has_gl) counts.insert(r.patches);
+      for (const int p : counts) {
+        print_gl_row("path", n, std::to_string(p),
+                     summarize_gl(records[n], [p](const FrameRecord& r) { return r.patches == p; }));
+      }
+    }
+    for (const CopiesGl& c : copies_gl) {
+      char patches[32];
+      std::snprintf(patches, sizeof patches, "%.0f", c.patches_med);
+      print_gl_row("K = " + std::to_string(c.k), c.n, patches, c.gl);
+    }
+  }
   if (o.json) {
     const std::string bad = first_non_finite(js);
     if (!bad.empty()) throw Exit(kInternal, "internal error: non-finite value at '" + bad + "' of the result (please report)");

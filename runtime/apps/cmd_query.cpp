@@ -1,5 +1,6 @@
 // `hrt query A.hbundle B.hbundle [more B bundles] --pose-a x y z qx qy qz qw
-//  --pose-b ... [--resolution N] [--stiffness K] [--shortcut] [--json]`:
+//  --pose-b ... [--resolution N] [--stiffness K] [--shortcut]
+//  [--backend cpu|gl|auto] [--json]`:
 // one haptic frame (collision -> clustering -> texture force, Sec. 3.3) for
 // the given poses; prints the contact patches, the net wrench on the probe A,
 // the opposite wrench on every B, per-stage timings and warning counters.
@@ -41,8 +42,37 @@ double median(std::vector<double> v) {
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
-Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOptions& o,
-                          const hrt::StageTimings& t, const hrt::Warnings& w) {
+// The GL backend's figures of the last frame (absent with the CPU backend).
+// Query does not set GlDepthOptions::profile, so that its timings are those
+// of a frame as a session runs it: total_us and readback_us are then the
+// real costs, the other stages only the time to issue their commands (the
+// GPU's work lands in whichever stage waits for it first); `hrt bench
+// --backend gl` profiles the split.
+Json gl_json(const CliBackend& backend) {
+  const hrt::gl::GlDepthStats& s = backend.gl->stats();
+  const hrt::gl::GlDepthOptions& g = backend.gl->options();
+  const hrt::gl::ContextInfo& info = backend.selection.context->info();
+  return {{"renderer", info.renderer},
+          {"platform", info.platform},
+          {"hardware", info.hardware},
+          {"search", g.search == hrt::gl::MaxSearch::occlusion ? "occlusion" : "compute"},
+          {"occlusion_steps", g.occlusion_steps},
+          {"profiled", g.profile},
+          {"upload_us", s.upload_us},
+          {"draw_us", s.draw_us},
+          {"resolve_us", s.resolve_us},
+          {"reduce_us", s.reduce_us},
+          {"readback_us", s.readback_us},
+          {"total_us", s.total_us},
+          {"batches", s.batches},
+          {"round_trips", s.round_trips},
+          {"tiles", s.tiles},
+          {"occlusion_queries", s.occlusion_queries},
+          {"buffer_growths", s.buffer_growths}};
+}
+
+Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOptions& o, const CliBackend& backend,
+                const hrt::StageTimings& t, const hrt::Warnings& w) {
   using json = Json;
   json objects = json::array();
   for (int i = 0; i < scene.size(); ++i) {
@@ -89,7 +119,7 @@ Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOption
     wrench_b.push_back({{"object", b},
                         {"force", j3(st.wrench_b[static_cast<size_t>(b)].head<3>())},
                         {"torque", j3(st.wrench_b[static_cast<size_t>(b)].tail<3>())}});
-  return {{"version", 1},
+  Json doc = {{"version", 1},
           {"units", {{"length", "m"}, {"force", "N"}, {"torque", "N m"}, {"stiffness", "N/m"}, {"angle", "rad"}, {"time", "us"}}},
           {"objects", objects},
           {"options",
@@ -102,7 +132,8 @@ Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOption
             {"margin", so.collision.margin},
             {"max_patches", so.cluster.max_patches},
             {"auto_resolution", so.cluster.auto_resolution},
-            {"max_resolution", so.cluster.max_resolution}}},
+            {"max_resolution", so.cluster.max_resolution},
+            {"backend", backend.name()}}},
           {"pairs", st.num_pairs},
           {"contacts", contacts},
           {"force", j3(st.force)},
@@ -124,10 +155,12 @@ Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOption
             {"uncovered_configurations", w.depth.uncovered_configurations},
             {"refused_patches", w.refused_patches},
             {"clamped_patches", w.clamped_patches}}}};
+  if (backend.gl) doc["gl"] = gl_json(backend);
+  return doc;
 }
 
-void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptions& o, const hrt::StageTimings& t,
-                 const hrt::Warnings& w) {
+void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptions& o, const CliBackend& backend,
+                 const hrt::StageTimings& t, const hrt::Warnings& w) {
   const hrt::SceneOptions& so = scene.options();
   std::printf("probe A     %s (%s)\n", scene.model(0).path.c_str(), scene.model(0).name.c_str());
   for (int b = 1; b < scene.size(); ++b)
@@ -137,6 +170,7 @@ void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptio
               so.cluster.auto_resolution ? (" (auto, up to " + std::to_string(so.cluster.max_resolution) + ")").c_str() : "",
               so.force.lin_step > 0 || so.force.ang_step > 0 ? "explicit" : "one texel",
               so.force.shortcut ? "shortcut (Sec. 5.2)" : "full re-rasterization");
+  std::printf("backend     %s\n", backend.describe().c_str());
   std::printf("contacts    %d piece pairs -> %d patches\n\n", st.num_pairs, st.num_patches);
   if (st.num_patches > 0) {
     std::printf("%3s %3s %5s %9s %12s %25s %25s %25s\n", "#", "B", "pairs", "tris A/B", "delta mm", "n (A into B)",
@@ -169,6 +203,14 @@ void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptio
   std::printf("timings (us)      collision %.1f, clustering %.1f, texture force %.1f, total %.1f%s\n", t.collision_us,
               t.clustering_us, t.force_us, t.total_us,
               o.repeat > 1 ? (" (median of " + std::to_string(o.repeat) + " frames)").c_str() : " (one frame)");
+  if (backend.gl && st.num_patches > 0) {
+    // Unprofiled (see gl_json): the total and the read-back only.
+    const hrt::gl::GlDepthStats& g = backend.gl->stats();
+    std::printf("gl (us)           total %.1f, read-back %.1f; %d batch(es), %d round trip(s), %d tile(s), %d occlusion "
+                "quer%s (last frame)\n",
+                g.total_us, g.readback_us, g.batches, g.round_trips, g.tiles, g.occlusion_queries,
+                g.occlusion_queries == 1 ? "y" : "ies");
+  }
   const uint64_t any = w.fallback_normals + w.fcl_failures + w.pairs_grown + w.patches_dropped + w.empty_windows +
                        w.depth.undersampled_patches + w.depth.uncovered_configurations + w.refused_patches +
                        w.clamped_patches;
@@ -223,6 +265,7 @@ void register_query(CLI::App& app) {
       ->check(CLI::Range(1, 1000000));
   cmd->add_flag("--json", o->json, "print the result as JSON (layout: docs/hrt-query-json.md)");
   cmd->callback([o]() {
+    o->scene.check_backend_flags();
     const size_t nb = o->bundles.size() - 1;
     if (o->pose_b.size() != 7 * nb)
       throw Exit(kUsage, "--pose-b: " + std::to_string(nb) + " B bundle(s) need " + std::to_string(nb) +
@@ -237,11 +280,14 @@ void register_query(CLI::App& app) {
     std::vector<const hrt::Model*> objects;
     for (const auto& m : models) objects.push_back(m.get());
     const auto scene = make_scene(objects, o->scene.scene_options());
+    // Declared before the State, which points at it (and must go first).
+    const CliBackend backend = select_depth_backend(o->scene, objects, scene->options(), false, true);
     hrt::State st(*scene);
+    st.depth_backend = backend.for_state();
     st.poses[0] = pose_a;
     for (size_t b = 0; b < nb; ++b) st.poses[b + 1] = poses_b[b];
 
-    hrt::frame(*scene, st);
+    frame_or_usage(*scene, st);
     const hrt::Warnings warnings = st.warnings;  // of the reported (first) frame
     std::vector<double> tc{st.timings.collision_us}, tk{st.timings.clustering_us}, tf{st.timings.force_us},
         tt{st.timings.total_us};
@@ -249,7 +295,7 @@ void register_query(CLI::App& app) {
     // results; only their timings are kept. The printed results are the
     // last frame's, identical to the first's.
     for (int r = 1; r < o->repeat; ++r) {
-      hrt::frame(*scene, st);
+      frame_or_usage(*scene, st);
       tc.push_back(st.timings.collision_us);
       tk.push_back(st.timings.clustering_us);
       tf.push_back(st.timings.force_us);
@@ -262,13 +308,13 @@ void register_query(CLI::App& app) {
     t.total_us = median(tt);
     // Both outputs print the same values: a NaN or infinity among them is a
     // bug upstream (nlohmann-json would print it as null), never a result.
-    const Json doc = query_json(*scene, st, *o, t, warnings);
+    const Json doc = query_json(*scene, st, *o, backend, t, warnings);
     const std::string bad = first_non_finite(doc);
     if (!bad.empty()) throw Exit(kInternal, "internal error: non-finite value at '" + bad + "' of the result (please report)");
     if (o->json) {
       std::printf("%s\n", doc.dump(2, ' ', false, Json::error_handler_t::replace).c_str());
     } else {
-      print_table(*scene, st, *o, t, warnings);
+      print_table(*scene, st, *o, backend, t, warnings);
     }
   });
 }

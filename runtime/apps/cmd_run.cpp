@@ -1,5 +1,5 @@
 // `hrt run SCENE.toml [--duration S] [--lockstep | --realtime] [--sched-fifo]
-//  [--trace PATH] [--device-log PATH] [--json] [--quiet]`
+//  [--backend cpu|gl|auto] [--trace PATH] [--device-log PATH] [--json] [--quiet]`
 //
 // A haptic session (issue 9): loads the scene file (docs/scene-format.md),
 // its bundles and trajectories, opens the device, then runs the simulation
@@ -16,6 +16,11 @@
 // rates, device-loop jitter (real time), clamps, watchdog events. Ctrl-C (or
 // SIGTERM) stops cleanly: the device ramps to zero, the trace is written,
 // exit 130.
+//
+// The depth backend ([run] backend, --backend) is made on this thread, which
+// is also the one that runs every simulation frame (Session::step) in both
+// modes: the GL context is current here, and the device loop's thread never
+// touches GL (it only ticks the device).
 #include <algorithm>
 #include <atomic>
 #include <chrono>
@@ -37,6 +42,7 @@
 #include "hrt/run_config.h"
 #include "hrt/scene.h"
 #include "hrt/session.h"
+#include "scene_cli.h"
 
 namespace hrt_cli {
 namespace {
@@ -60,6 +66,7 @@ struct RunFlags {
   double duration = -1;
   bool lockstep = false, realtime = false, json = false, quiet = false, sched_fifo = false;
   std::string trace, device_log;
+  std::string backend;  // "" = the scene file's run.backend
 };
 
 double median(std::vector<double> v) {
@@ -136,6 +143,22 @@ int run(const RunFlags& f) {
   if (cfg.lockstep && cfg.device.type != "scripted")
     throw Exit(kUsage, "--lockstep needs a scripted device (" + cfg.file + " has device.type = \"" +
                            cfg.device.type + "\"); see hrt run --help");
+  // Where the backend choice comes from, for the messages.
+  std::string backend_source = cfg.file + ": run.backend = \"" + cfg.backend + "\"";
+  bool backend_from_file = true;
+  if (!f.backend.empty()) {
+    cfg.backend = f.backend;
+    backend_source = "--backend " + f.backend;
+    backend_from_file = false;
+    // The file checks this pair for its own backend (force.shortcut); an
+    // override needs the same check.
+    if (cfg.backend == "gl" && cfg.scene.force.shortcut)
+      throw Exit(kUsage, "--backend gl: " + cfg.file +
+                             " sets [force] shortcut = true, which only the CPU backend implements; see hrt run --help");
+  }
+  hrt::BackendChoice backend_choice = hrt::BackendChoice::cpu;
+  if (!hrt::parse_backend_choice(cfg.backend, backend_choice))  // both readers checked it already
+    throw Exit(kUsage, backend_source + ": not a backend (cpu, gl, auto)");
   // Paths given on the command line are relative to the working directory.
   if (!f.trace.empty()) cfg.trace.path = f.trace;
   if (!f.device_log.empty()) cfg.trace.device_log = f.device_log;
@@ -156,6 +179,14 @@ int run(const RunFlags& f) {
   } catch (const std::invalid_argument& e) {
     throw Exit(kScene, "error: " + cfg.file + ": " + e.what());
   }
+  // The depth backend for the scene's models, before the device is opened
+  // (a GL failure, exit 7, then leaves no port bound). Declared before the
+  // session, which points at it and must be destroyed first.
+  hrt::gl::GlDepthOptions gl_options;
+  gl_options.search = cfg.gl_search == "occlusion" ? hrt::gl::MaxSearch::occlusion : hrt::gl::MaxSearch::compute;
+  gl_options.occlusion_steps = cfg.occlusion_steps;
+  const CliBackend backend =
+      select_depth_backend(backend_choice, backend_source, gl_options, ptrs, cfg.scene, !f.quiet);
   std::vector<hrt::Trajectory> trajectories(cfg.objects.size());
   for (size_t b = 1; b < cfg.objects.size(); ++b) {
     if (cfg.objects[b].trajectory.empty()) continue;
@@ -196,6 +227,7 @@ int run(const RunFlags& f) {
   }
   for (size_t b = 1; b < cfg.objects.size(); ++b)
     if (!trajectories[b].empty()) session->set_trajectory(static_cast<int>(b), &trajectories[b]);
+  session->set_depth_backend(backend.for_state());
 
   hrt::TraceWriter trace;
   try {
@@ -220,6 +252,8 @@ int run(const RunFlags& f) {
   double frame_us_sum = 0;
   std::vector<double> frame_us;
   frame_us.reserve(1 << 16);
+  std::vector<double> gl_total_us;  // the GL backend's total per frame with patches
+  if (backend.gl) gl_total_us.reserve(1 << 16);
   hrt::DeviceTarget tgt;
   const auto wall0 = std::chrono::steady_clock::now();
   std::string trace_error;
@@ -231,6 +265,9 @@ int run(const RunFlags& f) {
     const double us = fr.timings.total_us + fr.dynamics_us;
     frame_us_sum += us;
     if (frame_us.size() < frame_us.capacity()) frame_us.push_back(us);
+    // frame() calls the backend only for a frame with patches.
+    if (backend.gl && session->state().num_patches > 0 && gl_total_us.size() < gl_total_us.capacity())
+      gl_total_us.push_back(backend.gl->stats().total_us);
     if (trace.is_open() && trace_error.empty()) {
       try {
         trace.row(hrt::TraceRow{&fr, &tgt});
@@ -238,6 +275,26 @@ int run(const RunFlags& f) {
         trace_error = e.what();
       }
     }
+  };
+
+  // A backend that refuses the scene's options (std::invalid_argument from
+  // DepthBackend::evaluate) or fails on the GPU (GlError) stops the session
+  // as Ctrl-C does (the device ramps to zero), then ends with one line.
+  std::string step_error;
+  int step_error_code = kOk;
+  auto step = [&](double t, double h, const hrt::Pose& target) -> const hrt::SessionFrame* {
+    try {
+      return &session->step(t, h, target);
+    } catch (const std::invalid_argument& e) {
+      if (!backend.gl) throw;  // the CPU code inline never throws it: a bug
+      step_error = "error: " + backend_source + ": the " + backend.name() +
+                   " backend refused the scene's options: " + e.what();
+      step_error_code = backend_from_file ? kScene : kUsage;
+    } catch (const hrt::gl::GlError& e) {
+      step_error = "error: " + backend_source + ": " + e.what();
+      step_error_code = kGl;
+    }
+    return nullptr;
   };
 
   const int every = std::max(1, cfg.sim_every);
@@ -248,9 +305,10 @@ int run(const RunFlags& f) {
       loop.tick();
       if (i % static_cast<size_t>(every) != 0) continue;
       if (!loop.target(tgt)) continue;
-      const hrt::SessionFrame& fr = session->step(t, every * cfg.loop.period, tgt.target);
+      const hrt::SessionFrame* fr = step(t, every * cfg.loop.period, tgt.target);
+      if (!fr) break;
       loop.publish(session->command());
-      record(fr);
+      record(*fr);
     }
   } else {
     loop.start();
@@ -265,9 +323,10 @@ int run(const RunFlags& f) {
       const double h = t_prev < 0 ? cfg.loop.period : std::min(cfg.max_step, std::max(1e-6, t - t_prev));
       if (t_prev >= 0 && sim_periods.size() < sim_periods.capacity()) sim_periods.push_back(t - t_prev);
       t_prev = t;
-      const hrt::SessionFrame& fr = session->step(t, h, tgt.target);
+      const hrt::SessionFrame* fr = step(t, h, tgt.target);
+      if (!fr) break;
       loop.publish(session->command());
-      record(fr);
+      record(*fr);
       // Poses for a visual display: the device forwards them at its own
       // display rate (UdpDevice: [device] display_rate), others ignore them.
       device.publish_poses(t, session->state().poses.data(), scene->size());
@@ -278,6 +337,9 @@ int run(const RunFlags& f) {
   const bool interrupted = g_stop.load();
   std::signal(SIGINT, SIG_DFL);
   std::signal(SIGTERM, SIG_DFL);
+  // No trace of a session that did not run its scene (the writer's
+  // destructor removes the .partial file).
+  if (!step_error.empty()) throw Exit(step_error_code, step_error);
 
   if (trace.is_open()) {
     try {
@@ -341,6 +403,24 @@ int run(const RunFlags& f) {
                 {"bad_type", c.bad_type}, {"non_finite", c.non_finite}, {"out_of_order", c.out_of_order},
                 {"sent_wrenches", c.sent_wrenches}, {"sent_display", c.sent_display}};
   }
+  nlohmann::json jb = {{"choice", cfg.backend}, {"name", backend.name()}, {"message", backend.selection.message}};
+  if (backend.gl) {
+    const hrt::gl::GlDepthStats& gs = backend.gl->stats();
+    const hrt::gl::ContextInfo& gi = backend.selection.context->info();
+    jb["renderer"] = gi.renderer;
+    jb["platform"] = gi.platform;
+    jb["hardware"] = gi.hardware;
+    jb["search"] = cfg.gl_search;
+    jb["occlusion_steps"] = cfg.occlusion_steps;
+    jb["frames_evaluated"] = gl_total_us.size();
+    jb["total_us_median"] = median(gl_total_us);
+    jb["total_us_p99"] = percentile(gl_total_us, 0.99);
+    jb["buffer_growths"] = gs.buffer_growths;
+    // Of the last frame with patches (frame() calls the backend only then).
+    jb["last_frame"] = {{"total_us", gs.total_us}, {"readback_us", gs.readback_us}, {"batches", gs.batches},
+                        {"round_trips", gs.round_trips}, {"tiles", gs.tiles}, {"occlusion_queries", gs.occlusion_queries}};
+  }
+  j["backend"] = jb;
   j["trace"] = cfg.trace.path;
   j["interrupted"] = interrupted;
   if (!first_non_finite(j).empty()) throw Exit(kInternal, "internal error: non-finite value in the summary");
@@ -366,6 +446,9 @@ int run(const RunFlags& f) {
                 static_cast<unsigned long long>(st.rate_limited), static_cast<unsigned long long>(st.non_finite),
                 static_cast<unsigned long long>(st.watchdog_events),
                 static_cast<unsigned long long>(state.warnings.refused_patches));
+    if (backend.gl)
+      std::printf("  depth backend: %s; GL total median %.1f us, p99 %.1f us over %zu frames with patches\n",
+                  backend.describe().c_str(), median(gl_total_us), percentile(gl_total_us, 0.99), gl_total_us.size());
     if (!cfg.trace.path.empty()) std::printf("  trace: %s\n", cfg.trace.path.c_str());
   }
   if (interrupted) {
@@ -399,6 +482,10 @@ void register_run(CLI::App& app) {
   sub->add_option("--device-log", f->device_log, "Per-device-tick CSV (overrides trace.device_log)");
   sub->add_flag("--sched-fifo", f->sched_fifo,
                 "Ask for SCHED_FIFO for the device thread (overrides loop.realtime; falls back and says so)");
+  sub->add_option("--backend", f->backend,
+                  "Where the penetration depth runs (overrides run.backend): cpu, gl (exit 7 without a usable "
+                  "OpenGL 4.5 context), auto (gl only on a hardware renderer that beats the cpu in a short probe)")
+      ->check(CLI::IsMember({"cpu", "gl", "auto"}));
   sub->add_flag("--json", f->json, "Print the summary as JSON");
   sub->add_flag("--quiet", f->quiet, "Print nothing on success");
   sub->callback([f]() {

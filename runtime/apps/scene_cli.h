@@ -1,6 +1,6 @@
 // Command-line pieces shared by `hrt query` and `hrt bench`: the scene
-// options as flags, pose parsing, bundle loading. Header-only, used by
-// cmd_query.cpp and cmd_bench.cpp.
+// options as flags, the depth backend (`--backend`), pose parsing, bundle
+// loading. Header-only, used by cmd_query.cpp and cmd_bench.cpp.
 #pragma once
 
 #include <cerrno>
@@ -15,6 +15,8 @@
 #include <CLI/CLI.hpp>
 
 #include "commands.h"
+#include "hrt/depth_backend.h"
+#include "hrt/gl_depth.h"
 #include "hrt/model.h"
 #include "hrt/scene.h"
 
@@ -65,6 +67,15 @@ struct SceneFlags {
   bool auto_resolution = hrt::ClusterOptions{}.auto_resolution;
   int max_resolution = hrt::ClusterOptions{}.max_resolution;
   bool verify_hashes = true;
+  // The depth backend (hrt/depth_backend.h, hrt/gl_depth.h).
+  std::string backend = "cpu";
+  std::string gl_search = "compute";
+  int occlusion_steps = hrt::gl::GlDepthOptions{}.occlusion_steps;
+  // Set by add_to: whether --gl-search / --occlusion-steps were given (a
+  // value for a backend or search that does not use it is refused, as the
+  // scene file refuses a key of another device type).
+  const CLI::Option* gl_search_opt = nullptr;
+  const CLI::Option* occlusion_steps_opt = nullptr;
 
   void add_to(CLI::App* cmd, bool with_resolution = true) {
     if (with_resolution)
@@ -96,6 +107,46 @@ struct SceneFlags {
         ->check(Integer())
         ->capture_default_str();
     cmd->add_flag("!--no-verify-hashes", verify_hashes, "skip the SHA-256 checks of the bundles' files");
+    cmd->add_option("--backend", backend,
+                    "where the penetration depth runs: cpu (the reference); gl (the OpenGL 4.5 backend on a headless "
+                    "EGL context, exit 7 when there is none); auto (gl only on a hardware renderer that beats the "
+                    "cpu in a short probe, else cpu)")
+        ->check(CLI::IsMember({"cpu", "gl", "auto"}))
+        ->capture_default_str();
+    gl_search_opt = cmd->add_option("--gl-search", gl_search,
+                                    "the GL backend's max search: compute (a compute-shader reduction, exact) or "
+                                    "occlusion (the paper's occlusion-query binary search, --occlusion-steps passes)")
+                        ->check(CLI::IsMember({"compute", "occlusion"}))
+                        ->capture_default_str();
+    occlusion_steps_opt =
+        cmd->add_option("--occlusion-steps", occlusion_steps,
+                        "binary-search passes of --gl-search occlusion (1..23; delta within 2 R / 2^steps)")
+            ->check(Integer())
+            ->check(CLI::Range(1, 23))
+            ->capture_default_str();
+  }
+
+  // The combinations of the backend flags that mean nothing (or that the GL
+  // backend refuses): usage errors, before any bundle is loaded.
+  void check_backend_flags() const {
+    const bool may_use_gl = backend != "cpu";
+    if (gl_search_opt && gl_search_opt->count() > 0 && !may_use_gl)
+      throw Exit(kUsage, "--gl-search: only with --backend gl or auto (the backend is cpu)");
+    if (occlusion_steps_opt && occlusion_steps_opt->count() > 0 && (!may_use_gl || gl_search != "occlusion"))
+      throw Exit(kUsage, "--occlusion-steps: only with --gl-search occlusion (and --backend gl or auto)");
+    // The GL backend implements full re-rasterization only (gl_depth.h); auto
+    // then stays on the cpu (select_depth_backend).
+    if (backend == "gl" && shortcut)
+      throw Exit(kUsage,
+                 "--shortcut: the Sec. 5.2 shortcut is implemented by the CPU backend only; drop --shortcut or use "
+                 "--backend cpu");
+  }
+
+  hrt::gl::GlDepthOptions gl_options() const {
+    hrt::gl::GlDepthOptions g;
+    g.search = gl_search == "occlusion" ? hrt::gl::MaxSearch::occlusion : hrt::gl::MaxSearch::compute;
+    g.occlusion_steps = occlusion_steps;
+    return g;
   }
 
   hrt::SceneOptions scene_options() const {
@@ -113,6 +164,102 @@ struct SceneFlags {
     return o;
   }
 };
+
+// The depth backend a command runs on. `selection` owns the GL context and
+// the backend (BackendSelection destroys the backend before the context, as
+// the GL objects need); it must outlive every State pointing at the backend:
+// declare it before the State.
+struct CliBackend {
+  hrt::BackendChoice choice = hrt::BackendChoice::cpu;
+  hrt::gl::BackendSelection selection;
+  hrt::gl::GlDepthBackend* gl = nullptr;  // selection.backend when the GL backend was chosen
+
+  // For State::depth_backend: the GL backend, or null for the CPU one. With
+  // null, frame() runs the CPU depth code inline patch by patch: the path the
+  // results were validated on (CpuDepthBackend computes the same numbers),
+  // without the per-frame job tables and the virtual call.
+  hrt::DepthBackend* for_state() const { return gl; }
+  const char* name() const { return gl ? "gl" : "cpu"; }
+  std::string renderer() const { return gl ? selection.context->info().renderer : std::string(); }
+  // "cpu", or "gl on RENDERER (compute search)" / "(occlusion search, 16 steps)".
+  std::string describe() const {
+    if (!gl) return "cpu";
+    const hrt::gl::GlDepthOptions& g = gl->options();
+    return "gl on " + renderer() + " (" +
+           (g.search == hrt::gl::MaxSearch::occlusion
+                ? "occlusion search, " + std::to_string(g.occlusion_steps) + " steps"
+                : std::string("compute search")) +
+           ")";
+  }
+};
+
+// Makes the backend `choice` names for `models` (every model the scene can
+// evaluate) and `options` (auto's probe runs at options.force.resolution).
+// `source` names where the choice came from in messages ("--backend gl",
+// "scene.toml: run.backend = \"gl\""). Prints select_backend's one-line
+// message on stderr when `announce` and the choice was not cpu (with cpu
+// nothing was chosen, so there is nothing to say; the outputs name the
+// backend anyway). A GL failure (no context, or one that lacks what the
+// backend needs) ends the command with exit 7 and one line naming what is
+// missing, as `hrt gl-info` does. The context is current on the calling
+// thread: call this on the thread that runs the frames.
+inline CliBackend select_depth_backend(hrt::BackendChoice choice, const std::string& source,
+                                       const hrt::gl::GlDepthOptions& gl_options,
+                                       const std::vector<const hrt::Model*>& models,
+                                       const hrt::SceneOptions& options, bool announce) {
+  CliBackend out;
+  out.choice = choice;
+  hrt::BackendChoice effective = choice;
+  std::string note;
+  // The GL backend refuses the shortcut (gl_depth.h): auto keeps to the cpu
+  // instead of picking a backend whose first contact frame would fail. (gl
+  // with the shortcut is refused earlier, by the callers' checks.)
+  if (effective == hrt::BackendChoice::automatic && options.force.shortcut) {
+    effective = hrt::BackendChoice::cpu;
+    note = "backend: auto -> cpu (the Sec. 5.2 shortcut is implemented by the CPU backend only)";
+  }
+  try {
+    out.selection = hrt::gl::select_backend(effective, models, options, gl_options);
+  } catch (const hrt::gl::GlError& e) {
+    std::string what = e.what();
+    for (char& c : what)
+      if (c == '\n' || c == '\r') c = ' ';  // one line, whatever the driver said
+    throw Exit(kGl, "error: " + source + ": " + what);
+  }
+  out.gl = dynamic_cast<hrt::gl::GlDepthBackend*>(out.selection.backend.get());
+  if (!note.empty()) out.selection.message = note;
+  if (announce && choice != hrt::BackendChoice::cpu) std::fprintf(stderr, "hrt: %s\n", out.selection.message.c_str());
+  return out;
+}
+
+// SceneFlags' backend (query, bench): checked by check_backend_flags first.
+// `profile`: GlDepthOptions::profile (the per-stage split of hrt bench).
+inline CliBackend select_depth_backend(const SceneFlags& flags, const std::vector<const hrt::Model*>& models,
+                                       const hrt::SceneOptions& options, bool profile, bool announce) {
+  hrt::BackendChoice choice = hrt::BackendChoice::cpu;
+  if (!hrt::parse_backend_choice(flags.backend, choice))  // CLI11 checked it already
+    throw Exit(kUsage, "--backend: '" + flags.backend + "' is not a backend (cpu, gl, auto)");
+  hrt::gl::GlDepthOptions g = flags.gl_options();
+  g.profile = profile;
+  return select_depth_backend(choice, "--backend " + flags.backend, g, models, options, announce);
+}
+
+// hrt::frame with a backend, its failures as one line: an option the
+// backend refuses (std::invalid_argument from DepthBackend::evaluate) is a
+// usage error, a GL error in the frame exits 7 as a missing context does.
+// The CPU code inline throws neither.
+inline void frame_or_usage(const hrt::Scene& scene, hrt::State& st) {
+  try {
+    hrt::frame(scene, st);
+  } catch (const std::invalid_argument& e) {
+    if (!st.depth_backend) throw;
+    throw Exit(kUsage,
+               std::string("--backend: the ") + st.depth_backend->name() + " backend refused the options: " + e.what());
+  } catch (const hrt::gl::GlError& e) {
+    throw Exit(kGl, std::string("error: --backend: the ") + (st.depth_backend ? st.depth_backend->name() : "cpu") +
+                        " backend failed in a frame: " + e.what());
+  }
+}
 
 // The supported range of positions (poses, bench paths): |p| <= 1e4 m. The
 // models are parts of at most metres; far beyond this the contact

@@ -433,7 +433,13 @@ TEST_F(RunConfig, OutOfRangeValuesAreErrors) {
                "force.max_resolution", "at least the resolution");
   expect_error(minimal("[run]\nduration = 0\n"), "run.duration", "must be > 0");
   expect_error(minimal("[run]\nsim_every = 0\n"), "run.sim_every", "between 1 and");
-  expect_error(minimal("[run]\nbackend = \"gl\"\n"), "run.backend", "must be one of \"cpu\"");
+  expect_error(minimal("[run]\nbackend = \"vulkan\"\n"), "run.backend", "must be one of \"cpu\", \"gl\", \"auto\"");
+  expect_error(minimal("[run]\nbackend = \"gl\"\ngl_search = \"fast\"\n"), "run.gl_search",
+               "must be one of \"compute\", \"occlusion\"");
+  expect_error(minimal("[run]\nbackend = \"gl\"\ngl_search = \"occlusion\"\nocclusion_steps = 24\n"),
+               "run.occlusion_steps", "between 1 and 23");
+  expect_error(minimal("[run]\nbackend = \"gl\"\ngl_search = \"occlusion\"\nocclusion_steps = 0\n"),
+               "run.occlusion_steps", "between 1 and 23");
   expect_error(minimal("[force]\nheights = \"fine\"\n"), "force.heights", "\"surface\", \"coarse\"");
   expect_error(minimal("[probe]\ndensity = 0\n"), "probe.density", "must be > 0");
   expect_error(minimal("[workspace]\nscale = -2\n"), "workspace.scale", "must be > 0");
@@ -528,6 +534,38 @@ TEST_F(RunConfig, DeviceAndRunConsistencyErrors) {
   expect_error(minimal("[trace]\npath = \"\"\n"), "trace.path", "empty path");
   expect_error(minimal("[trace]\ndevice_log = \"out/d.csv\"\n[loop]\nlog_capacity = 0\n"), "loop.log_capacity",
                "nothing would be logged");
+}
+
+// [run] backend, gl_search, occlusion_steps (issue 10): the three choices,
+// and the GL settings refused where no GL backend runs (as a udp key on a
+// scripted device), the shortcut refused with the GL backend.
+TEST_F(RunConfig, DepthBackendKeys) {
+  hrt::RunConfig c = hrt::load_run_config(scene(minimal()));
+  EXPECT_EQ(c.backend, "cpu");
+  EXPECT_EQ(c.gl_search, "compute");
+  EXPECT_EQ(c.occlusion_steps, 16);
+  c = hrt::load_run_config(scene(minimal("[run]\nbackend = \"auto\"\n")));
+  EXPECT_EQ(c.backend, "auto");
+  c = hrt::load_run_config(scene(minimal("[run]\nbackend = \"gl\"\ngl_search = \"occlusion\"\nocclusion_steps = 12\n")));
+  EXPECT_EQ(c.backend, "gl");
+  EXPECT_EQ(c.gl_search, "occlusion");
+  EXPECT_EQ(c.occlusion_steps, 12);
+  hrt::BackendChoice choice = hrt::BackendChoice::cpu;
+  EXPECT_TRUE(hrt::parse_backend_choice(c.backend, choice));
+  EXPECT_EQ(choice, hrt::BackendChoice::gl);
+  // auto may pick the shortcut's CPU backend: allowed.
+  c = hrt::load_run_config(scene(minimal("[run]\nbackend = \"auto\"\n[force]\nshortcut = true\n")));
+  EXPECT_TRUE(c.scene.force.shortcut);
+
+  expect_error(minimal("[run]\ngl_search = \"compute\"\n"), "run.gl_search", "only with backend = \"gl\" or \"auto\"");
+  expect_error(minimal("[run]\nbackend = \"gl\"\nocclusion_steps = 8\n"), "run.occlusion_steps",
+               "only with gl_search = \"occlusion\"");
+  expect_error(minimal("[run]\nbackend = \"cpu\"\nocclusion_steps = 8\n"), "run.occlusion_steps",
+               "only with gl_search = \"occlusion\"");
+  expect_error(minimal("[run]\nbackend = \"gl\"\ngl_search = \"occlusion\"\nocclusion_steps = 8.0\n"),
+               "run.occlusion_steps", "expected an integer, got a float");
+  expect_error(minimal("[run]\nbackend = \"gl\"\n[force]\nshortcut = true\n"), "force.shortcut",
+               "implemented by the CPU backend only");
 }
 
 TEST_F(RunConfig, TomlSyntaxErrorsGiveTheLine) {

@@ -254,6 +254,69 @@ struct DepthGradient {
 DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
                                      const ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch);
 
+// ---- What both backends share (the GL backend, hrt/gl_depth.h, repeats the
+// CPU's arithmetic from these numbers) ----
+
+// One placement of a model over a patch grid (extended by `border` texels):
+// object point P -> grid x = gx . P + ox, y = gy . P + oy (texel centres at
+// integers, border included), height relative to n . window.origin =
+// n_obj . P + oh. gx4, gy4, n4 are gx, gy, n_obj in float (the atlas
+// lookups' arithmetic). surface: the surface mode applies (the model has a
+// surface map and the mode is surface); tol: its lateral tolerance in grid
+// texels.
+struct PlacementParams {
+  Vec3 gx = Vec3::Zero(), gy = Vec3::Zero(), nobj = Vec3::UnitZ();
+  double ox = 0, oy = 0, oh = 0;
+  double tol = 0;
+  bool surface = false;
+  float gx4[4] = {}, gy4[4] = {}, n4[4] = {};
+};
+PlacementParams placement_params(const Model& M, const Eigen::Isometry3d& world_from_m, const Vec3& n, const Vec3& u,
+                                 const Vec3& v, const Window& w, int border, HeightMode mode);
+
+// resolve_heights' first residual of texel (i, j) with configuration-0
+// height h (grid texels): (i, j) - (gx0 + gxi i + gxj j + gxh h, gy0 + ...).
+struct ResolveMotion {
+  double gx0 = 0, gxi = 0, gxj = 0, gxh = 0, gy0 = 0, gyi = 0, gyj = 0, gyh = 0;
+};
+ResolveMotion resolve_motion(const Eigen::Isometry3d& world_from_m, const Eigen::Isometry3d& seed_world_from_m,
+                             const Vec3& n, const Vec3& u, const Vec3& v, const Window& w);
+
+// How compute_depth_gradient evaluates one patch: the steps, A's placements
+// at the 11 configurations, which are rasterized and which re-solved from
+// configuration 0's seeds or shifted from its map, and the culling bounds.
+struct DepthPlan {
+  double lin_step = 0, ang_step = 0;
+  // Surface mode without the shortcut: configuration 0 rasterized with seeds,
+  // the others re-solved from them; the translations by shift_m whole texels
+  // (0: none, re-solved too) are shifts of h_A(0), which has border `border`.
+  bool seeded = false;
+  int shift_m = 0;
+  int border = 0;
+  double cx = 0, cy = 0;  // c_A in grid coordinates (the shortcut's rotation centre)
+  // rasterize_heights' `cull` for A's and B's triangles (NaN: none).
+  double cull_a = 0, cull_b = 0;
+  Eigen::Isometry3d world_from_a[11];  // A's placement at each configuration (Config order)
+  Eigen::Isometry3d world_from_b;
+};
+// False when the window is unusable (N <= 0 or cell <= 0): no contact.
+bool plan_depth(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b, const ContactPatch& patch,
+                const ForceOptions& opt, DepthPlan& plan);
+
+// The last step of compute_depth_gradient, shared by the backends: from
+// delta_at[], lin_step and ang_step, sets covered (delta_at[0] > -inf),
+// delta, grad (Eq. 7's central differences, one-sided next to an uncovered
+// configuration) and uncovered_configurations.
+void finish_depth_gradient(DepthGradient& g);
+
+// The force model on a patch from its DepthGradient (what
+// compute_patch_wrench does after compute_depth_gradient): patch.covered,
+// delta, grad, curvature (second differences of Eq. 7), the contact region
+// and the wrench (Eq. 5-6); the undersampling warning as compute_patch_wrench
+// counts it.
+void apply_depth_gradient(const Model& A, const Model& B, ContactPatch& patch, const DepthGradient& g,
+                          const ForceOptions& opt, DepthWarnings* warnings = nullptr, bool* warned = nullptr);
+
 // The whole force model for one patch: fills patch.delta, grad, covered,
 // force and torque (on A, world; torque about A's centre of mass
 // A.mass.center_of_mass placed by pose_a). An uncovered patch gets delta = 0,

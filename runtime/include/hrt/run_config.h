@@ -65,7 +65,12 @@ struct RunConfig {
   bool lockstep = false;              // fixed step, no wall clock (reproducible)
   int sim_every = 1;                  // lockstep: one simulation frame every sim_every device periods
   double max_step = 0.02;             // real-time: longest h one frame integrates, s
-  std::string backend = "cpu";        // cpu (the only one before the GL backend lands)
+  // The depth backend (hrt/depth_backend.h, hrt/gl_depth.h): cpu | gl | auto
+  // (parse_backend_choice); the GL backend's max search: compute | occlusion,
+  // and the occlusion search's passes (1..23).
+  std::string backend = "cpu";
+  std::string gl_search = "compute";
+  int occlusion_steps = 16;
   TraceConfig trace;
 };
 

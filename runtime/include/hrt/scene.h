@@ -40,6 +40,7 @@
 
 #include "hrt/contact.h"
 #include "hrt/depth.h"
+#include "hrt/depth_backend.h"
 #include "hrt/model.h"
 
 namespace hrt {
@@ -242,6 +243,12 @@ struct State {
   std::vector<char> track_taken;                   // per previous track, during matching
   std::vector<double> target_cell;                 // per object: auto-resolution texel target (0 = none)
   DepthScratch depth;
+  // Where the depth query runs (hrt/depth_backend.h; non-owning, the caller
+  // keeps it alive): null means the CPU code inline, one patch at a time.
+  // With a backend, frame() hands it all patches of the frame at once.
+  DepthBackend* depth_backend = nullptr;
+  std::vector<DepthJob> depth_jobs;            // capacity max_patches (frame() with a backend)
+  std::vector<DepthGradient> depth_results;    // capacity max_patches
   void resize_pair_scratch(size_t n);  // the per-pair scratch above, for n pairs
 };
 

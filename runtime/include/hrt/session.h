@@ -113,6 +113,9 @@ class Session {
 
   const Scene& scene() const { return scene_; }
   const State& state() const { return state_; }
+  // Where the depth query runs (hrt/depth_backend.h; non-owning, must
+  // outlive the session; null: the CPU code inline, the default).
+  void set_depth_backend(DepthBackend* backend) { state_.depth_backend = backend; }
   const RigidBody& body() const { return body_; }
   const BodyState& body_state() const { return body_state_; }
   BodyState& body_state() { return body_state_; }

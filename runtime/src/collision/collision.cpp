@@ -810,6 +810,8 @@ State::State(const Scene& scene) {
     p.tris_b.reserve(b_faces);
   }
   patch_ids.assign(static_cast<size_t>(maxp), 0);
+  depth_jobs.resize(static_cast<size_t>(maxp));
+  depth_results.resize(static_cast<size_t>(maxp));
   patch_first_pair.assign(static_cast<size_t>(maxp), 0);
   patch_pair_count.assign(static_cast<size_t>(maxp), 0);
   tracks.resize(static_cast<size_t>(maxp));

@@ -237,6 +237,19 @@ void frame(const Scene& scene, State& st) {
   for (Vec6& w : st.wrench_b) w.setZero();
   // O_i of every pair, for the safety checks (apply_patch_safety).
   compute_pair_overlaps(scene, st);
+  if (st.depth_backend && st.num_patches > 0) {
+    // All patches of the frame in one call (the GL backend tiles them).
+    for (int k = 0; k < st.num_patches; ++k) {
+      const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
+      DepthJob& job = st.depth_jobs[static_cast<size_t>(k)];
+      job.a = &A;
+      job.b = &scene.model(patch.object_b);
+      job.pose_a = pose_a;
+      job.pose_b = st.poses[static_cast<size_t>(patch.object_b)];
+      job.patch = &patch;
+    }
+    st.depth_backend->evaluate(st.depth_jobs.data(), st.num_patches, scene.options().force, st.depth_results.data());
+  }
   for (int k = 0; k < st.num_patches; ++k) {
     ContactPatch& patch = st.patches[static_cast<size_t>(k)];
     const int b = patch.object_b;
@@ -244,8 +257,12 @@ void frame(const Scene& scene, State& st) {
     const Pose& pose_b = st.poses[static_cast<size_t>(b)];
     // The undersampling warning (Sec. 7.2) counts once per patch lifetime:
     // the flag lives in the patch's track (cluster_pairs keeps it across frames).
-    compute_patch_wrench(A, pose_a, B, pose_b, patch, scene.options().force, st.depth, &st.warnings.depth,
-                         &st.tracks[static_cast<size_t>(k)].warned);
+    if (st.depth_backend)
+      apply_depth_gradient(A, B, patch, st.depth_results[static_cast<size_t>(k)], scene.options().force,
+                           &st.warnings.depth, &st.tracks[static_cast<size_t>(k)].warned);
+    else
+      compute_patch_wrench(A, pose_a, B, pose_b, patch, scene.options().force, st.depth, &st.warnings.depth,
+                           &st.tracks[static_cast<size_t>(k)].warned);
 
     apply_patch_safety(scene, st, k);
 

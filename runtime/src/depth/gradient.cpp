@@ -182,30 +182,28 @@ double effective_ang_step(const ContactPatch& patch, const Vec3& c_a_world, cons
   return opt.ang_step > 0 ? opt.ang_step : default_ang_step(patch, c_a_world);
 }
 
-DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
-                                     const ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch) {
-  DepthGradient out;
+bool plan_depth(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b, const ContactPatch& patch,
+                const ForceOptions& opt, DepthPlan& plan) {
   const int N = patch.window.resolution;
-  for (double& d : out.delta_at) d = -kInf;
-  out.grad << 0, 0, 1, 0, 0, 0;
-  if (N <= 0 || !(patch.window.cell > 0)) return out;
-
+  if (N <= 0 || !(patch.window.cell > 0)) return false;
   const Eigen::Isometry3d Ta = pose_a.iso();
   const Eigen::Isometry3d Tb = pose_b.iso();
   const Vec3 c_a = Ta * A.mass.center_of_mass;
   const double du = effective_lin_step(patch, opt);
   const double dth = effective_ang_step(patch, c_a, opt);
-  out.lin_step = du;
-  out.ang_step = dth;
+  plan.lin_step = du;
+  plan.ang_step = dth;
+  plan.world_from_b = Tb;
   const double cell = patch.window.cell;
 
   // Border of h_A(0) for the shortcut: the largest texel displacement of the
   // resampled configurations (translation du, n-rotation about c_A).
   int border = 0;
-  double cx = 0, cy = 0;
+  plan.cx = plan.cy = 0;
   if (opt.shortcut) {
-    cx = (c_a - patch.window.origin).dot(patch.u) / cell - 0.5;
-    cy = (c_a - patch.window.origin).dot(patch.v) / cell - 0.5;
+    const double cx = (c_a - patch.window.origin).dot(patch.u) / cell - 0.5;
+    const double cy = (c_a - patch.window.origin).dot(patch.v) / cell - 0.5;
+    plan.cx = cx, plan.cy = cy;
     double rmax = 0;  // in-plane distance (texels) from c_A to the farthest texel centre
     for (int k = 0; k < 4; ++k) {
       const double x = (k & 1) ? N - 1 : 0, y = (k & 2) ? N - 1 : 0;
@@ -215,21 +213,20 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     // Clamped in double first: disp can exceed int for a far c_A.
     border = std::isnan(disp) ? N : static_cast<int>(std::clamp(std::ceil(disp - 1e-9), 1.0, static_cast<double>(N)));
   }
-  // Surface mode without the shortcut: seeded re-solves (below); whole-texel
+  // Surface mode without the shortcut: seeded re-solves; whole-texel
   // translations by shifting.
-  const bool seeded = opt.heights == HeightMode::surface && !opt.shortcut && A.surface.ready;
-  int shift_m = 0;
-  if (seeded) {
+  plan.seeded = opt.heights == HeightMode::surface && !opt.shortcut && A.surface.ready;
+  plan.shift_m = 0;
+  if (plan.seeded) {
     const double s = du / cell, rs = std::round(s);
-    if (std::abs(s - rs) < 1e-9 && rs >= 1 && rs <= DepthScratch::kReservedBorder) shift_m = static_cast<int>(rs);
-    border = shift_m;
+    if (std::abs(s - rs) < 1e-9 && rs >= 1 && rs <= DepthScratch::kReservedBorder) plan.shift_m = static_cast<int>(rs);
+    border = plan.shift_m;
   }
-  ensure_capacity(scratch, N, border);
-  const int S = N + 2 * border;
+  plan.border = border;
 
   const std::vector<uint32_t>& ta = patch.tris_a;
   const std::vector<uint32_t>& tb = patch.tris_b;
-  const Vec3 &n = patch.n, &u = patch.u, &v = patch.v;
+  const Vec3& n = patch.n;
   // Culling bounds for the surface mode's costly triangles (rasterize_heights):
   // the lowest point B's triangles can have and the highest A's can, along
   // n, from their corners and the surface map's reach, relative to n .
@@ -238,7 +235,7 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   // or v none; a rotation dth about c_A at most dth times the distance, plus
   // two grid texels of slack) overlaps nowhere at any configuration: it could
   // only change a maximum that is below zero, which makes no force.
-  double cull_a = std::numeric_limits<double>::quiet_NaN(), cull_b = cull_a;
+  plan.cull_a = plan.cull_b = std::numeric_limits<double>::quiet_NaN();
   if (opt.heights == HeightMode::surface && A.surface.ready && B.surface.ready) {
     const double h0 = n.dot(patch.window.origin);
     double lo_b = kInf, hi_a = -kInf, r_a = 0;
@@ -257,11 +254,39 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     }
     const double motion = std::abs(dth) * r_a + 2.0 * cell;
     if (std::isfinite(lo_b) && std::isfinite(hi_a) && std::isfinite(motion)) {
-      cull_a = lo_b - motion;
-      cull_b = hi_a + motion;
+      plan.cull_a = lo_b - motion;
+      plan.cull_b = hi_a + motion;
     }
   }
-  rasterize_heights(B, Tb, tb, n, u, v, patch.window, 0, false, scratch.hb.data(), opt.heights, cull_b);
+  plan.world_from_a[0] = Ta;
+  for (int c = 1; c < static_cast<int>(Config::count); ++c)
+    plan.world_from_a[c] = config_motion(static_cast<Config>(c), patch, c_a, du, dth) * Ta;
+  return true;
+}
+
+DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
+                                     const ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch) {
+  DepthGradient out;
+  const int N = patch.window.resolution;
+  for (double& d : out.delta_at) d = -kInf;
+  out.grad << 0, 0, 1, 0, 0, 0;
+  DepthPlan plan;
+  if (!plan_depth(A, pose_a, B, pose_b, patch, opt, plan)) return out;
+  const double du = plan.lin_step, dth = plan.ang_step;
+  out.lin_step = du;
+  out.ang_step = dth;
+  const double cell = patch.window.cell;
+  const int border = plan.border, shift_m = plan.shift_m;
+  const bool seeded = plan.seeded;
+  const double cx = plan.cx, cy = plan.cy;
+  ensure_capacity(scratch, N, border);
+  const int S = N + 2 * border;
+
+  const std::vector<uint32_t>& ta = patch.tris_a;
+  const std::vector<uint32_t>& tb = patch.tris_b;
+  const Vec3 &n = patch.n, &u = patch.u, &v = patch.v;
+  rasterize_heights(B, plan.world_from_b, tb, n, u, v, patch.window, 0, false, scratch.hb.data(), opt.heights,
+                    plan.cull_b);
   const double* hb = scratch.hb.data();
   const double* ha0 = scratch.ha0.data();
   const size_t n2 = static_cast<size_t>(N) * N;
@@ -275,13 +300,13 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   int borders[11] = {};
   int rendered[11];
   int count = 0;
-  T[count] = Ta;
+  T[count] = plan.world_from_a[0];
   bufs[count] = scratch.ha0.data();
   borders[count] = border;
   rendered[count++] = 0;
   for (int c = 1; c < static_cast<int>(Config::count); ++c) {
     if (opt.shortcut && (c < 5 || c > 8)) continue;
-    T[count] = config_motion(static_cast<Config>(c), patch, c_a, du, dth) * Ta;
+    T[count] = plan.world_from_a[c];
     bufs[count] = scratch.hcfg.data() + (c - 1) * n2;
     rendered[count++] = c;
   }
@@ -293,7 +318,7 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     // whole number m of texels along u or v moves A's surface, and so its
     // height map, by exactly m texels: those four are shifts of h_A(0),
     // rasterized with a border of m.
-    rasterize_heights_seeded(A, T[0], ta, n, u, v, patch.window, border, true, bufs[0], scratch.seeds, cull_a);
+    rasterize_heights_seeded(A, T[0], ta, n, u, v, patch.window, border, true, bufs[0], scratch.seeds, plan.cull_a);
     for (int k = 1; k < count; ++k) {
       const int c = rendered[k];
       if (shift_m > 0 && c >= 1 && c <= 4) continue;
@@ -305,8 +330,6 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
 
   D[0] = shifted_depth(ha0, S, border, hb, N, 0, 0);
   if (D[0] == -kInf) return out;  // nothing covered by both: no contact
-  out.covered = true;
-  out.delta = D[0];
   if (D[0] > 0) {
     // The contact region (where the two overlap), for friction's centre of
     // pressure (hrt/session.h). One pass over configuration 0.
@@ -363,6 +386,21 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     D[10] = rotated_depth(ha0, S, border, hb, N, cx, cy, -dth);
   }
 
+  finish_depth_gradient(out);
+  return out;
+}
+
+void finish_depth_gradient(DepthGradient& out) {
+  const double* D = out.delta_at;
+  const double du = out.lin_step, dth = out.ang_step;
+  out.covered = D[0] > -kInf;
+  out.uncovered_configurations = 0;
+  out.grad << 0, 0, 1, 0, 0, 0;
+  if (!out.covered) {
+    out.delta = 0;
+    return;
+  }
+  out.delta = D[0];
   // Central differences (Eq. 7); one-sided when one neighbour is uncovered.
   auto diff = [&](int plus, int minus, double step) {
     const bool p = D[plus] > -kInf, m = D[minus] > -kInf;
@@ -379,7 +417,6 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   out.grad[3] = dth > 0 ? diff(5, 6, dth) : 0.0;
   out.grad[4] = dth > 0 ? diff(7, 8, dth) : 0.0;
   out.grad[5] = dth > 0 ? diff(9, 10, dth) : 0.0;
-  return out;
 }
 
 }  // namespace hrt

@@ -143,33 +143,27 @@ struct Placement {
 
 Placement make_placement(const Model& M, const Eigen::Isometry3d& world_from_m, const Vec3& n, const Vec3& u,
                          const Vec3& v, const Window& w, int border, bool keep_max, double* out, HeightMode mode) {
-  const bool surf = mode == HeightMode::surface && M.surface.ready;
-  const Mat3 R = world_from_m.linear();
-  const Vec3 t = world_from_m.translation();
-  const double inv_cell = 1.0 / w.cell;
-  const Vec3 nobj = R.transpose() * n;
+  const PlacementParams pp = placement_params(M, world_from_m, n, u, v, w, border, mode);
   const Atlas& at = M.atlas;
-  Placement pl{R.transpose() * u * inv_cell,
-                   R.transpose() * v * inv_cell,
-                   (t - w.origin).dot(u) * inv_cell - 0.5 + border,
-                   (t - w.origin).dot(v) * inv_cell - 0.5 + border,
-                   (t - w.origin).dot(n),
-                   HeightSampler{at.rgba.data(), at.width, at.height, static_cast<size_t>(at.width) * 4,
-                                 {static_cast<float>(nobj.x()), static_cast<float>(nobj.y()),
-                                  static_cast<float>(nobj.z()), 0.0f},
-                                 surf ? M.surface.quad_ok.data() : nullptr},
-                   w.resolution + 2 * border,
-                   keep_max,
-                   out,
-                   surf ? &M.surface : nullptr,
-                   nobj,
-                   kLateralTolerance * std::min(1.0, M.quality.texel_size > 0 ? M.quality.texel_size * inv_cell : 1.0),
-                   w.cell};
-  for (int k = 0; k < 3; ++k) {
-    pl.gx4[k] = static_cast<float>(pl.gx[k]);
-    pl.gy4[k] = static_cast<float>(pl.gy[k]);
+  Placement pl{pp.gx,
+               pp.gy,
+               pp.ox,
+               pp.oy,
+               pp.oh,
+               HeightSampler{at.rgba.data(), at.width, at.height, static_cast<size_t>(at.width) * 4,
+                             {pp.n4[0], pp.n4[1], pp.n4[2], 0.0f},
+                             pp.surface ? M.surface.quad_ok.data() : nullptr},
+               w.resolution + 2 * border,
+               keep_max,
+               out,
+               pp.surface ? &M.surface : nullptr,
+               pp.nobj,
+               pp.tol,
+               w.cell};
+  for (int k = 0; k < 4; ++k) {
+    pl.gx4[k] = pp.gx4[k];
+    pl.gy4[k] = pp.gy4[k];
   }
-  pl.gx4[3] = pl.gy4[3] = 0.0f;
   return pl;
 }
 
@@ -267,31 +261,24 @@ void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, co
     if (!(lo <= hi)) continue;
     const int ia = static_cast<int>(std::ceil(lo - 1e-9)), ib = static_cast<int>(std::floor(hi + 1e-9));
     double* row = pl.out + static_cast<size_t>(j) * S;
-    // Warm start: the correction q - X of the previous texel of the row (f's
-    // offset changes little from one texel to the next), else X clamped into
-    // the triangle.
-    bool warm = false;
-    double wx = 0, wy = 0;
     for (int i = std::max(ia, i0); i <= std::min(ib, i1); ++i) {
       // A texel already at or beyond anything this triangle can give is done.
-      if (pl.keep_max ? row[i] >= hhi : row[i] <= hlo) {
-        warm = false;
-        continue;
-      }
-      double qx = i + wx, qy = j + wy;
+      if (pl.keep_max ? row[i] >= hhi : row[i] <= hlo) continue;
+      // The start depends on the texel alone (X clamped into the triangle),
+      // not on its neighbours' solutions: the GL backend runs one texel per
+      // fragment and must converge to the same point. A warm start from the
+      // row's previous texel was 4-10 % faster on the scraping bench (texture
+      // force per frame, N = 50 and 128, examples/bench_heights.sh's scene)
+      // but made the result depend on the order of texels and triangles.
+      double qx = i, qy = j;
       double b[3];
       bary(qx, qy, b);
-      if (!warm || b[0] * scale[0] < -margin || b[1] * scale[1] < -margin || b[2] * scale[2] < -margin) {
-        bary(i, j, b);
-        qx = i, qy = j;
-        if (b[0] < 0 || b[1] < 0 || b[2] < 0) {
-          const double c0 = std::max(b[0], 0.0), c1 = std::max(b[1], 0.0), c2 = std::max(b[2], 0.0);
-          const double cs = c0 + c1 + c2;
-          qx = (c0 * x[0] + c1 * x[1] + c2 * x[2]) / cs;
-          qy = (c0 * y[0] + c1 * y[1] + c2 * y[2]) / cs;
-        }
+      if (b[0] < 0 || b[1] < 0 || b[2] < 0) {
+        const double c0 = std::max(b[0], 0.0), c1 = std::max(b[1], 0.0), c2 = std::max(b[2], 0.0);
+        const double cs = c0 + c1 + c2;
+        qx = (c0 * x[0] + c1 * x[1] + c2 * x[2]) / cs;
+        qy = (c0 * y[0] + c1 * y[1] + c2 * y[2]) / cs;
       }
-      warm = false;
       for (int it = 0; it < kMaxLateralIterations; ++it) {
         const double a_x = ax[0] + dax_dx * (qx - x[0]) + dax_dy * (qy - y[0]);
         const double a_y = ay[0] + day_dx * (qx - x[0]) + day_dy * (qy - y[0]);
@@ -305,9 +292,6 @@ void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, co
             if (pl.seed_a)
               write_seed(pl, static_cast<size_t>(j) * S + i, a_x, a_y, dax_dx, dax_dy, day_dx, day_dy);
           }
-          warm = true;
-          wx = qx - i;
-          wy = qy - j;
           break;
         }
         qx += rx;
@@ -424,6 +408,48 @@ bool usable(const Model& M, const Window& w) {
 
 }  // namespace
 
+PlacementParams placement_params(const Model& M, const Eigen::Isometry3d& world_from_m, const Vec3& n, const Vec3& u,
+                                 const Vec3& v, const Window& w, int border, HeightMode mode) {
+  PlacementParams pp;
+  pp.surface = mode == HeightMode::surface && M.surface.ready;
+  const Mat3 R = world_from_m.linear();
+  const Vec3 t = world_from_m.translation();
+  const double inv_cell = 1.0 / w.cell;
+  pp.nobj = R.transpose() * n;
+  pp.gx = R.transpose() * u * inv_cell;
+  pp.gy = R.transpose() * v * inv_cell;
+  pp.ox = (t - w.origin).dot(u) * inv_cell - 0.5 + border;
+  pp.oy = (t - w.origin).dot(v) * inv_cell - 0.5 + border;
+  pp.oh = (t - w.origin).dot(n);
+  pp.tol = kLateralTolerance * std::min(1.0, M.quality.texel_size > 0 ? M.quality.texel_size * inv_cell : 1.0);
+  for (int k = 0; k < 3; ++k) {
+    pp.gx4[k] = static_cast<float>(pp.gx[k]);
+    pp.gy4[k] = static_cast<float>(pp.gy[k]);
+    pp.n4[k] = static_cast<float>(pp.nobj[k]);
+  }
+  return pp;
+}
+
+ResolveMotion resolve_motion(const Eigen::Isometry3d& world_from_m, const Eigen::Isometry3d& seed_world_from_m,
+                             const Vec3& n, const Vec3& u, const Vec3& v, const Window& w) {
+  // The seed's point lies (within the tolerance) on texel (i, j)'s column at
+  // height seed_h: its world position is affine in (i, j, h), and so are its
+  // grid coordinates after the motion from the seed's placement to this one.
+  // So the first residual needs no lookup: r0 = (i, j) - G (i, j, h).
+  const Eigen::Isometry3d motion = world_from_m * seed_world_from_m.inverse(Eigen::Isometry);
+  const Mat3 Rm = motion.linear();
+  const double cell = w.cell;
+  // p(i, j, h) = origin + (i + 0.5) cell u + (j + 0.5) cell v + h n (heights relative to n . origin);
+  // x' = u . (motion p - origin) / cell - 0.5, likewise y'.
+  const Vec3 mo = motion * w.origin - w.origin;
+  const Vec3 Ru = Rm * u, Rv = Rm * v, Rn = Rm * n;
+  ResolveMotion r;
+  r.gxi = u.dot(Ru), r.gxj = u.dot(Rv), r.gxh = u.dot(Rn) / cell;
+  r.gyi = v.dot(Ru), r.gyj = v.dot(Rv), r.gyh = v.dot(Rn) / cell;
+  r.gx0 = u.dot(mo) / cell + 0.5 * (r.gxi + r.gxj) - 0.5, r.gy0 = v.dot(mo) / cell + 0.5 * (r.gyi + r.gyj) - 0.5;
+  return r;
+}
+
 void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const std::vector<uint32_t>& tris,
                        const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, int border, bool keep_max,
                        double* out, HeightMode mode, double cull) {
@@ -486,20 +512,9 @@ void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, cons
   }
   const Placement pl = make_placement(M, world_from_m, n, u, v, w, 0, keep_max, out, HeightMode::surface);
   const double tol2 = pl.tol * pl.tol;
-  // The seed's point lies (within the tolerance) on texel (i, j)'s column at
-  // height seed_h: its world position is affine in (i, j, h), and so are its
-  // grid coordinates after the motion from the seed's placement to this one.
-  // So the first residual needs no lookup: r0 = (i, j) - G (i, j, h).
-  const Eigen::Isometry3d motion = world_from_m * seed_world_from_m.inverse(Eigen::Isometry);
-  const Mat3 Rm = motion.linear();
-  const double cell = w.cell;
-  // p(i, j, h) = origin + (i + 0.5) cell u + (j + 0.5) cell v + h n (heights relative to n . origin);
-  // x' = u . (motion p - origin) / cell - 0.5, likewise y'.
-  const Vec3 mo = motion * w.origin - w.origin;
-  const Vec3 Ru = Rm * u, Rv = Rm * v, Rn = Rm * n;
-  const double gxi = u.dot(Ru), gxj = u.dot(Rv), gxh = u.dot(Rn) / cell;
-  const double gyi = v.dot(Ru), gyj = v.dot(Rv), gyh = v.dot(Rn) / cell;
-  const double gx0 = u.dot(mo) / cell + 0.5 * (gxi + gxj) - 0.5, gy0 = v.dot(mo) / cell + 0.5 * (gyi + gyj) - 0.5;
+  const ResolveMotion rm = resolve_motion(world_from_m, seed_world_from_m, n, u, v, w);
+  const double gxi = rm.gxi, gxj = rm.gxj, gxh = rm.gxh, gyi = rm.gyi, gyj = rm.gyj, gyh = rm.gyh;
+  const double gx0 = rm.gx0, gy0 = rm.gy0;
   for (int j = 0; j < N; ++j)
     for (int i = 0; i < N; ++i) {
       const size_t k = static_cast<size_t>(j) * N + i;

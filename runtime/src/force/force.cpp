@@ -39,11 +39,16 @@ void wrench_on_b(const Vec3& force_a, const Vec3& torque_a, const Vec3& c_a, con
 void compute_patch_wrench(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
                           ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch,
                           DepthWarnings* warnings, bool* warned) {
+  const DepthGradient g = compute_depth_gradient(A, pose_a, B, pose_b, patch, opt, scratch);
+  apply_depth_gradient(A, B, patch, g, opt, warnings, warned);
+}
+
+void apply_depth_gradient(const Model& A, const Model& B, ContactPatch& patch, const DepthGradient& g,
+                          const ForceOptions& opt, DepthWarnings* warnings, bool* warned) {
   if (warnings && grid_undersamples(A, B, patch.window) && !(warned && *warned)) {
     ++warnings->undersampled_patches;
     if (warned) *warned = true;
   }
-  const DepthGradient g = compute_depth_gradient(A, pose_a, B, pose_b, patch, opt, scratch);
   if (warnings) warnings->uncovered_configurations += static_cast<uint64_t>(g.uncovered_configurations);
   patch.covered = g.covered;
   patch.contact_texels = 0;

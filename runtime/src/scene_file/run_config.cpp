@@ -48,7 +48,7 @@ constexpr int64_t kMaxLogCapacity = 10'000'000;
 // suggestions use (docs/scene-format.md documents the same keys).
 const std::map<std::string, std::vector<std::string>>& known_keys() {
   static const std::map<std::string, std::vector<std::string>> k = {
-      {"run", {"duration", "lockstep", "sim_every", "max_step", "backend"}},
+      {"run", {"duration", "lockstep", "sim_every", "max_step", "backend", "gl_search", "occlusion_steps"}},
       {"object", {"name", "bundle", "position", "orientation", "trajectory"}},
       {"force",
        {"stiffness", "resolution", "lin_step", "ang_step", "shortcut", "heights", "margin", "max_patches",
@@ -486,7 +486,16 @@ RunConfig load_run_config(const std::string& path) {
     c.lockstep = s.boolean("lockstep", c.lockstep);
     c.sim_every = s.integer("sim_every", c.sim_every, 1, 1'000'000);
     c.max_step = s.positive("max_step", c.max_step);
-    c.backend = s.choice("backend", c.backend, {"cpu"});
+    c.backend = s.choice("backend", c.backend, {"cpu", "gl", "auto"});
+    // The GL backend's settings: refused where no GL backend can run (a
+    // setting that does nothing is a scene that does not do what its author
+    // thinks, as a udp key on a scripted device).
+    if (c.backend == "cpu" && s.has("gl_search"))
+      s.fail("gl_search", "only with backend = \"gl\" or \"auto\" (this scene's backend is \"cpu\")");
+    c.gl_search = s.choice("gl_search", c.gl_search, {"compute", "occlusion"});
+    if (s.has("occlusion_steps") && (c.backend == "cpu" || c.gl_search != "occlusion"))
+      s.fail("occlusion_steps", "only with gl_search = \"occlusion\" (and backend = \"gl\" or \"auto\")");
+    c.occlusion_steps = s.integer("occlusion_steps", c.occlusion_steps, 1, 23);
   }
 
   // [[object]]: the probe first, then the objects it touches.
@@ -529,6 +538,11 @@ RunConfig load_run_config(const std::string& path) {
     f.lin_step = s.nonnegative("lin_step", f.lin_step);
     f.ang_step = s.nonnegative("ang_step", f.ang_step);
     f.shortcut = s.boolean("shortcut", f.shortcut);
+    // The GL backend implements full re-rasterization only (hrt/gl_depth.h):
+    // refused here rather than at the first contact of the session. (auto
+    // then keeps to the CPU backend.)
+    if (f.shortcut && c.backend == "gl")
+      s.fail("shortcut", "the Sec. 5.2 shortcut is implemented by the CPU backend only, and run.backend is \"gl\"");
     f.heights = s.choice("heights", "surface", {"surface", "coarse"}) == "coarse" ? HeightMode::coarse
                                                                                    : HeightMode::surface;
     c.scene.collision.margin = s.nonnegative("margin", c.scene.collision.margin);

@@ -1,0 +1,2 @@
+// The occlusion queries' threshold quads write nothing but the depth test.
+void main() {}
