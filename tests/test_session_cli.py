@@ -711,3 +711,32 @@ def test_soft_start_ramps_the_force_in_linearly(models, hrt, tmp_path):
     # In full after the ramp: within 1 % of the final value (W0 has settled).
     after = t >= SOFT + 0.01
     assert np.all(np.abs(f[after] - final) <= 0.01 * final)
+
+
+# ----------------------------------------------------------------------------
+# The GL backend in a session (issue 10)
+# ----------------------------------------------------------------------------
+
+
+def test_gl_backend_session_equals_cpu(models, hrt, tmp_path):
+    # The slide above with --backend gl (the compute reduction): the GL backend computes
+    # every delta of the CPU's to the last bit (tests/test_gl_backend.py,
+    # runtime/tests/test_gl_depth.cpp), so the lockstep trace, which feeds each frame's
+    # forces into the next frame's poses, must equal the CPU's except the timings.
+    traj = S.write_trajectory(tmp_path / "slide.csv", [0.0, 0.1, 0.3],
+                              [(0, 0, TIP_UP), (0, 0, TIP_DOWN), (10 * MM, 0, TIP_DOWN)], [(0, 0, 0, 1)] * 3)
+    cpu, gl = tmp_path / "cpu.csv", tmp_path / "gl.csv"
+    res = hrt_run(hrt, _slide(models, tmp_path, cpu, traj), "--quiet", "--backend", "cpu")
+    assert res.returncode == 0, res.stderr
+    res = hrt_run(hrt, _slide(models, tmp_path, gl, traj), "--backend", "gl", "--json", timeout=600)
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["backend"]["name"] == "gl", summary["backend"]
+    head1, rows1 = _fields(cpu)
+    head2, rows2 = _fields(gl)
+    assert head1 == head2 and len(rows1) == len(rows2) == 301
+    keep = [i for i, c in enumerate(head1) if c not in TIMING_COLUMNS]
+    for r, (a, b) in enumerate(zip(rows1, rows2)):
+        assert [a[i] for i in keep] == [b[i] for i in keep], f"row {r + 2} differs"
+    tr = T.read_trace(gl)
+    assert np.sum(tr["patches"] >= 1) > 150 and np.max(np.abs(tr["fz"])) > 0.05  # in contact most of the slide

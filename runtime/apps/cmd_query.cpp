@@ -155,7 +155,15 @@ Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOption
             {"uncovered_configurations", w.depth.uncovered_configurations},
             {"refused_patches", w.refused_patches},
             {"clamped_patches", w.clamped_patches}}}};
-  if (backend.gl) doc["gl"] = gl_json(backend);
+  if (backend.gl) {
+    doc["gl"] = gl_json(backend);
+    // Per contact, the occlusion search's depth quantum (delta is within it
+    // of the exact maximum; 0 for the compute reduction): patch k of the
+    // frame is the backend's job k.
+    Json q = Json::array();
+    for (int k = 0; k < st.num_patches; ++k) q.push_back(backend.gl->quantum(k));
+    doc["gl"]["depth_quantum"] = q;
+  }
   return doc;
 }
 
