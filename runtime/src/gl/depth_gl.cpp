@@ -146,6 +146,12 @@ struct GlDepthBackend::Impl {
   GLuint vao = 0;
   GLuint prog_raster = 0, prog_resolve = 0, prog_reduce = 0, prog_diff = 0, prog_query = 0, prog_search = 0;
   std::vector<GLuint> query_ids;
+  // Uniform locations, looked up once (a lookup per frame is a string search in the driver).
+  struct Locations {
+    GLint raster_place = -1, raster_target = -1, resolve_first = -1, reduce_first = -1, reduce_region = -1;
+    GLint diff_slot = -1, diff_target = -1, diff_mode = -1, query_slot = -1, query_target = -1, query_mode = -1;
+    GLint query_cov = -1, search_first = -1, search_count = -1, search_step = -1;
+  } loc;
 
   // The batch being built (CPU side; capacities kept between frames).
   struct JobInfo {
@@ -479,8 +485,8 @@ struct GlDepthBackend::Impl {
     glEnable(GL_DEPTH_TEST);
     glDepthFunc(GL_GREATER);
     glUseProgram(prog_raster);
-    const GLint loc_place = glGetUniformLocation(prog_raster, "u_place");
-    glUniform2f(glGetUniformLocation(prog_raster, "u_target"), static_cast<float>(target), static_cast<float>(target));
+    const GLint loc_place = loc.raster_place;
+    glUniform2f(loc.raster_target, static_cast<float>(target), static_cast<float>(target));
     for (int p : render_places) {
       const int count = piv[static_cast<size_t>(p) * kPI + PI_TRI_COUNT];
       if (count <= 0) continue;
@@ -499,7 +505,7 @@ struct GlDepthBackend::Impl {
     glBindTextureUnit(4, tex_jac);
     glBindTextureUnit(5, tex_depth);
     glUseProgram(prog_resolve);
-    const GLint loc_first = glGetUniformLocation(prog_resolve, "u_first_place");
+    const GLint loc_first = loc.resolve_first;
     bool any_resolve = false;
     for (const JobInfo& ji : batch) {
       if (ji.resolve_count <= 0) continue;
@@ -518,8 +524,8 @@ struct GlDepthBackend::Impl {
     const bool occl = opt.search == MaxSearch::occlusion;
     if (occl) occlusion_search(nslots);
     glUseProgram(prog_reduce);
-    glUniform1i(glGetUniformLocation(prog_reduce, "u_first_slot"), 0);
-    glUniform1i(glGetUniformLocation(prog_reduce, "u_region_only"), occl ? 1 : 0);
+    glUniform1i(loc.reduce_first, 0);
+    glUniform1i(loc.reduce_region, occl ? 1 : 0);
     glDispatchCompute(static_cast<GLuint>(nslots), 1, 1);
     glMemoryBarrier(GL_BUFFER_UPDATE_BARRIER_BIT);
     if (opt.profile) glFinish();
@@ -592,9 +598,9 @@ struct GlDepthBackend::Impl {
     glBindTextureUnit(2, tex_h);
     glBindTextureUnit(5, tex_depth);
     glUseProgram(prog_diff);
-    GLint loc_slot = glGetUniformLocation(prog_diff, "u_slot");
-    glUniform2f(glGetUniformLocation(prog_diff, "u_target"), static_cast<float>(target), static_cast<float>(target));
-    glUniform1i(glGetUniformLocation(prog_diff, "u_depth_mode"), 0);
+    GLint loc_slot = loc.diff_slot;
+    glUniform2f(loc.diff_target, static_cast<float>(target), static_cast<float>(target));
+    glUniform1i(loc.diff_mode, 0);
     for (size_t s = 0; s < nslots; ++s) {
       glUniform1i(loc_slot, static_cast<GLint>(s));
       glDrawArrays(GL_TRIANGLE_STRIP, 0, 4);
@@ -607,10 +613,10 @@ struct GlDepthBackend::Impl {
     glBindBuffer(GL_QUERY_BUFFER, queries.id);
     for (int step = 0; step <= opt.occlusion_steps; ++step) {
       glUseProgram(prog_query);
-      loc_slot = glGetUniformLocation(prog_query, "u_slot");
-      glUniform2f(glGetUniformLocation(prog_query, "u_target"), static_cast<float>(target), static_cast<float>(target));
-      glUniform1i(glGetUniformLocation(prog_query, "u_depth_mode"), 1);
-      glUniform1i(glGetUniformLocation(prog_query, "u_coverage"), step == 0 ? 1 : 0);
+      loc_slot = loc.query_slot;
+      glUniform2f(loc.query_target, static_cast<float>(target), static_cast<float>(target));
+      glUniform1i(loc.query_mode, 1);
+      glUniform1i(loc.query_cov, step == 0 ? 1 : 0);
       for (size_t s = 0; s < nslots; ++s) {
         glBeginQuery(GL_ANY_SAMPLES_PASSED, query_ids[s]);
         glUniform1i(loc_slot, static_cast<GLint>(s));
@@ -622,9 +628,9 @@ struct GlDepthBackend::Impl {
         glGetQueryObjectuiv(query_ids[s], GL_QUERY_RESULT, reinterpret_cast<GLuint*>(static_cast<uintptr_t>(4 * s)));
       glMemoryBarrier(GL_QUERY_BUFFER_BARRIER_BIT | GL_SHADER_STORAGE_BARRIER_BIT);
       glUseProgram(prog_search);
-      glUniform1i(glGetUniformLocation(prog_search, "u_first_slot"), 0);
-      glUniform1i(glGetUniformLocation(prog_search, "u_count"), static_cast<GLint>(nslots));
-      glUniform1i(glGetUniformLocation(prog_search, "u_step"), step);
+      glUniform1i(loc.search_first, 0);
+      glUniform1i(loc.search_count, static_cast<GLint>(nslots));
+      glUniform1i(loc.search_step, step);
       glDispatchCompute(static_cast<GLuint>((nslots + 63) / 64), 1, 1);
       glMemoryBarrier(GL_SHADER_STORAGE_BARRIER_BIT | GL_QUERY_BUFFER_BARRIER_BIT);
     }
@@ -731,6 +737,22 @@ GlDepthBackend::GlDepthBackend(Context& context, const std::vector<const Model*>
   I.prog_query = make_program("occlusion query", {{GL_VERTEX_SHADER, {"slots.glsl", "quad.vert"}},
                                                   {GL_FRAGMENT_SHADER, {"empty.frag"}}});
   I.prog_search = make_program("search step", {{GL_COMPUTE_SHADER, {"search.comp"}}});
+  auto& L = I.loc;
+  L.raster_place = glGetUniformLocation(I.prog_raster, "u_place");
+  L.raster_target = glGetUniformLocation(I.prog_raster, "u_target");
+  L.resolve_first = glGetUniformLocation(I.prog_resolve, "u_first_place");
+  L.reduce_first = glGetUniformLocation(I.prog_reduce, "u_first_slot");
+  L.reduce_region = glGetUniformLocation(I.prog_reduce, "u_region_only");
+  L.diff_slot = glGetUniformLocation(I.prog_diff, "u_slot");
+  L.diff_target = glGetUniformLocation(I.prog_diff, "u_target");
+  L.diff_mode = glGetUniformLocation(I.prog_diff, "u_depth_mode");
+  L.query_slot = glGetUniformLocation(I.prog_query, "u_slot");
+  L.query_target = glGetUniformLocation(I.prog_query, "u_target");
+  L.query_mode = glGetUniformLocation(I.prog_query, "u_depth_mode");
+  L.query_cov = glGetUniformLocation(I.prog_query, "u_coverage");
+  L.search_first = glGetUniformLocation(I.prog_search, "u_first_slot");
+  L.search_count = glGetUniformLocation(I.prog_search, "u_count");
+  L.search_step = glGetUniformLocation(I.prog_search, "u_step");
   if (GLenum e = glGetError(); e != GL_NO_ERROR)
     throw GlError("GL depth backend: GL error " + std::to_string(e) + " while setting up");
 }
