@@ -12,27 +12,8 @@
 #include <string>
 #include <vector>
 
+#include "env_guard.h"
 #include "hrt/gl_context.h"
-
-namespace {
-
-struct EnvGuard {
-  std::string name;
-  std::string old;
-  bool had;
-  EnvGuard(const char* n, const char* v) : name(n) {
-    const char* o = std::getenv(n);
-    had = o != nullptr;
-    if (had) old = o;
-    setenv(n, v, 1);
-  }
-  ~EnvGuard() {
-    if (had) setenv(name.c_str(), old.c_str(), 1);
-    else unsetenv(name.c_str());
-  }
-};
-
-}  // namespace
 
 TEST(GlContext, MakesAnOpenGL45CoreContextThatRendersAndComputes) {
   std::unique_ptr<hrt::gl::Context> ctx = hrt::gl::Context::create();

@@ -30,6 +30,7 @@
 
 #include "hrt/depth_backend.h"
 #include "hrt/gl_depth.h"
+#include "env_guard.h"
 #include "hrt/scene.h"
 #include "synthetic.h"
 
@@ -137,6 +138,15 @@ Compare compare_frames(const std::vector<Frame>& frames, hrt::DepthBackend& gl, 
   return r;
 }
 
+// The golden pair most tests use, and the compute bound for it.
+struct Golden {
+  hrt::Model a, b;
+  double bound;
+  Golden(const char* na, const char* nb)
+      : a(hrt::load_bundle(golden(na))), b(hrt::load_bundle(golden(nb))),
+        bound(kHeightUlps * std::ldexp(1.0, -24) * (max_atlas_radius(a) + max_atlas_radius(b))) {}
+};
+
 struct GlFixture : ::testing::Test {
   static std::unique_ptr<hrt::gl::Context> ctx;
   static void SetUpTestSuite() { ctx = hrt::gl::Context::create(); }
@@ -147,13 +157,13 @@ std::unique_ptr<hrt::gl::Context> GlFixture::ctx;
 }  // namespace
 
 TEST_F(GlFixture, ComputeReductionEqualsCpuOnGoldenBundlesAtRandomPoses) {
-  const hrt::Model A = hrt::load_bundle(golden("pebble.hbundle"));
-  const hrt::Model B = hrt::load_bundle(golden("bumpy_blob.hbundle"));
+  const Golden g("pebble.hbundle", "bumpy_blob.hbundle");
+  const hrt::Model &A = g.a, &B = g.b;
   hrt::SceneOptions so;
   const auto frames = contact_frames(A, B, so, 24, 7);
   ASSERT_GE(frames.size(), 12u);
   hrt::gl::GlDepthBackend gl(*ctx, {&A, &B});
-  const double bound = kHeightUlps * std::ldexp(1.0, -24) * (max_atlas_radius(A) + max_atlas_radius(B));
+  const double bound = g.bound;
   const Compare r = compare_frames(frames, gl, so.force, [&](int, const hrt::Model&, const hrt::Model&) { return bound; });
   std::printf("compute: %d patches, %d configurations covered by both, worst |gl - cpu| %.3g m (%.3g of the bound %.3g)\n",
               r.patches, r.covered_both, r.worst, r.worst_ratio, bound);
@@ -182,26 +192,12 @@ int surface_path_triangles(const std::vector<Frame>& frames, const hrt::ForceOpt
   return n;
 }
 
-struct EnvGuard {
-  std::string name, old;
-  bool had;
-  EnvGuard(const char* n, const char* v) : name(n) {
-    const char* o = std::getenv(n);
-    had = o != nullptr;
-    if (had) old = o;
-    setenv(n, v, 1);
-  }
-  ~EnvGuard() {
-    if (had) setenv(name.c_str(), old.c_str(), 1);
-    else unsetenv(name.c_str());
-  }
-};
 
 }  // namespace
 
 TEST_F(GlFixture, OcclusionSearchWithinOneDepthQuantum) {
-  const hrt::Model A = hrt::load_bundle(golden("pebble.hbundle"));
-  const hrt::Model B = hrt::load_bundle(golden("bumpy_blob.hbundle"));
+  const Golden g("pebble.hbundle", "bumpy_blob.hbundle");
+  const hrt::Model &A = g.a, &B = g.b;
   hrt::SceneOptions so;
   const auto frames = contact_frames(A, B, so, 16, 11);
   ASSERT_GE(frames.size(), 8u);
@@ -210,7 +206,7 @@ TEST_F(GlFixture, OcclusionSearchWithinOneDepthQuantum) {
     go.search = hrt::gl::MaxSearch::occlusion;
     go.occlusion_steps = steps;
     hrt::gl::GlDepthBackend gl(*ctx, {&A, &B}, go);
-    const double hb = kHeightUlps * std::ldexp(1.0, -24) * (max_atlas_radius(A) + max_atlas_radius(B));
+    const double hb = g.bound;
     double worst_q = 0;
     const Compare r = compare_frames(frames, gl, so.force, [&](int k, const hrt::Model&, const hrt::Model&) {
       const double q = gl.quantum(k);
@@ -230,14 +226,14 @@ TEST_F(GlFixture, OcclusionSearchWithinOneDepthQuantum) {
 TEST_F(GlFixture, CoarseHeightsEqualCpu) {
   // --heights coarse: every configuration of A rasterized (no seeds), the
   // literal Eq. 8.
-  const hrt::Model A = hrt::load_bundle(golden("pebble.hbundle"));
-  const hrt::Model B = hrt::load_bundle(golden("ridged_box.hbundle"));
+  const Golden g("pebble.hbundle", "ridged_box.hbundle");
+  const hrt::Model &A = g.a, &B = g.b;
   hrt::SceneOptions so;
   so.force.heights = hrt::HeightMode::coarse;
   const auto frames = contact_frames(A, B, so, 12, 3);
   ASSERT_GE(frames.size(), 6u);
   hrt::gl::GlDepthBackend gl(*ctx, {&A, &B});
-  const double bound = kHeightUlps * std::ldexp(1.0, -24) * (max_atlas_radius(A) + max_atlas_radius(B));
+  const double bound = g.bound;
   const Compare r = compare_frames(frames, gl, so.force, [&](int, const hrt::Model&, const hrt::Model&) { return bound; });
   std::printf("coarse: %d configurations, worst %.3g m (bound %.3g), %d tiles in the last frame\n", r.covered_both,
               r.worst, bound, gl.stats().tiles);
@@ -245,14 +241,14 @@ TEST_F(GlFixture, CoarseHeightsEqualCpu) {
 }
 
 TEST_F(GlFixture, SurfacePathIsExercisedAndEqualsCpu) {
-  const hrt::Model A = hrt::load_bundle(golden("bumpy_blob.hbundle"));
-  const hrt::Model B = hrt::load_bundle(golden("ridged_box.hbundle"));
+  const Golden g("bumpy_blob.hbundle", "ridged_box.hbundle");
+  const hrt::Model &A = g.a, &B = g.b;
   hrt::SceneOptions so;
   const auto frames = contact_frames(A, B, so, 16, 5);
   ASSERT_GE(frames.size(), 8u);
   const int fixed_point = surface_path_triangles(frames, so.force);
   hrt::gl::GlDepthBackend gl(*ctx, {&A, &B});
-  const double bound = kHeightUlps * std::ldexp(1.0, -24) * (max_atlas_radius(A) + max_atlas_radius(B));
+  const double bound = g.bound;
   const Compare r = compare_frames(frames, gl, so.force, [&](int, const hrt::Model&, const hrt::Model&) { return bound; });
   std::printf("surface path: %d triangles on the fixed point, %d configurations, worst %.3g m (bound %.3g)\n", fixed_point,
               r.covered_both, r.worst, bound);
@@ -263,8 +259,8 @@ TEST_F(GlFixture, ManyPatchesInOneFrameEqualOneAtATime) {
   // Patches of several frames and of different window sizes in one call
   // (tiled together, and over several batches with a small render target)
   // give what each gives alone.
-  const hrt::Model A = hrt::load_bundle(golden("pebble.hbundle"));
-  const hrt::Model B = hrt::load_bundle(golden("bumpy_blob.hbundle"));
+  const Golden g("pebble.hbundle", "bumpy_blob.hbundle");
+  const hrt::Model &A = g.a, &B = g.b;
   hrt::SceneOptions so;
   auto frames = contact_frames(A, B, so, 10, 21);
   ASSERT_GE(frames.size(), 6u);
@@ -311,8 +307,8 @@ TEST_F(GlFixture, ManyPatchesInOneFrameEqualOneAtATime) {
 }
 
 TEST(GlSelect, GlWithoutAContextFailsNamingItAndAutoFallsBack) {
-  const hrt::Model A = hrt::load_bundle(golden("pebble.hbundle"));
-  const hrt::Model B = hrt::load_bundle(golden("bumpy_blob.hbundle"));
+  const Golden g("pebble.hbundle", "bumpy_blob.hbundle");
+  const hrt::Model &A = g.a, &B = g.b;
   hrt::SceneOptions so;
   EnvGuard env("HRT_EGL_PLATFORM", "no-such-platform");
   try {
@@ -328,8 +324,8 @@ TEST(GlSelect, GlWithoutAContextFailsNamingItAndAutoFallsBack) {
 }
 
 TEST(GlSelect, AutoNeverChoosesASoftwareRendererAndItsProbeSaysWhy) {
-  const hrt::Model A = hrt::load_bundle(golden("pebble.hbundle"));
-  const hrt::Model B = hrt::load_bundle(golden("bumpy_blob.hbundle"));
+  const Golden g("pebble.hbundle", "bumpy_blob.hbundle");
+  const hrt::Model &A = g.a, &B = g.b;
   hrt::SceneOptions so;
   hrt::gl::BackendSelection s = hrt::gl::select_backend(hrt::BackendChoice::automatic, {&A, &B}, so);
   ASSERT_TRUE(s.backend);
@@ -349,8 +345,8 @@ TEST(GlSelect, AutoNeverChoosesASoftwareRendererAndItsProbeSaysWhy) {
 }
 
 TEST_F(GlFixture, ShortcutIsRefusedWithAClearMessage) {
-  const hrt::Model A = hrt::load_bundle(golden("pebble.hbundle"));
-  const hrt::Model B = hrt::load_bundle(golden("bumpy_blob.hbundle"));
+  const Golden g("pebble.hbundle", "bumpy_blob.hbundle");
+  const hrt::Model &A = g.a, &B = g.b;
   hrt::SceneOptions so;
   const auto frames = contact_frames(A, B, so, 1, 7);
   ASSERT_EQ(frames.size(), 1u);

@@ -475,14 +475,7 @@ struct GlDepthBackend::Impl {
     t0 = Clock::now();
     glBindVertexArray(vao);
     glBindFramebuffer(GL_FRAMEBUFFER, fbo);
-    glViewport(0, 0, target, target);
-    glEnable(GL_SCISSOR_TEST);
-    glScissor(0, 0, target, std::max(shelf.rows(), 1));
-    glDepthMask(GL_TRUE);
-    glClearDepth(0.0);
-    glClear(GL_DEPTH_BUFFER_BIT);
-    glDisable(GL_SCISSOR_TEST);
-    glEnable(GL_DEPTH_TEST);
+    clear_depth(shelf.rows());
     glDepthFunc(GL_GREATER);
     glUseProgram(prog_raster);
     const GLint loc_place = loc.raster_place;
@@ -577,6 +570,20 @@ struct GlDepthBackend::Impl {
     (void)fo;
   }
 
+  // The bound framebuffer's depth cleared to 0 (uncovered) over its first
+  // `rows` rows (the used shelves: clearing all of it costs more than a small
+  // frame on a software renderer), then the depth test on.
+  void clear_depth(int rows) {
+    glViewport(0, 0, target, target);
+    glEnable(GL_SCISSOR_TEST);
+    glScissor(0, 0, target, std::max(rows, 1));
+    glDepthMask(GL_TRUE);
+    glClearDepth(0.0);
+    glClear(GL_DEPTH_BUFFER_BIT);
+    glDisable(GL_SCISSOR_TEST);
+    glEnable(GL_DEPTH_TEST);
+  }
+
   void occlusion_search(size_t nslots) {
     if (query_ids.size() < nslots) {
       const size_t old = query_ids.size();
@@ -586,14 +593,7 @@ struct GlDepthBackend::Impl {
     }
     // The differences, scaled into the depth buffer.
     glBindFramebuffer(GL_FRAMEBUFFER, diff_fbo);
-    glViewport(0, 0, target, target);
-    glEnable(GL_SCISSOR_TEST);
-    glScissor(0, 0, target, std::max(diff_shelf.rows(), 1));
-    glDepthMask(GL_TRUE);
-    glClearDepth(0.0);
-    glClear(GL_DEPTH_BUFFER_BIT);
-    glDisable(GL_SCISSOR_TEST);
-    glEnable(GL_DEPTH_TEST);
+    clear_depth(diff_shelf.rows());
     glDepthFunc(GL_ALWAYS);
     glBindTextureUnit(2, tex_h);
     glBindTextureUnit(5, tex_depth);
