@@ -11,7 +11,8 @@ APT_PACKAGES := build-essential cmake pkg-config python3-venv \
   libeigen3-dev libfcl-dev libopenexr-dev nlohmann-json3-dev libcli11-dev libtomlplusplus-dev \
   libgtest-dev googletest libssl-dev \
   libegl-mesa0 libgl1-mesa-dri libegl-dev libepoxy-dev \
-  clang libclang-rt-14-dev
+  clang libclang-rt-14-dev \
+  chromium chromium-driver
 
 .PHONY: setup apt venv runtime test test-py test-cpp demo bench clean
 

@@ -82,8 +82,12 @@ def _parse_atlas_size(ctx, param, value):
 @click.option("-f", "--force", is_flag=True, help="Replace an existing bundle.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress, summary or warnings "
                                                   "(errors are still printed).")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the report (as --report writes it, plus \"ok\": true) as JSON on "
+                   "stdout instead of the summary; on an error {\"ok\": false, \"error\": "
+                   "{class, exit_code, message}} (the line on stderr stays).")
 def bake_command(input, output, config, sets, method, units, target_faces, atlas_size,
-                 gutter, seed, samples, report, force, quiet):
+                 gutter, seed, samples, report, force, quiet, as_json=False):
     """Bake INPUT (OBJ, PLY, STL, OFF, glTF/GLB) into the bundle OUTPUT.
 
     Exit codes: 0 ok, 1 internal error, 2 bad option, 3 input missing, 4 input invalid,
@@ -103,11 +107,13 @@ def bake_command(input, output, config, sets, method, units, target_faces, atlas
                 _check_report_path(report)
         except HbakeError as exc:
             click.echo(f"hbake: error: {exc}", err=True)
+            if as_json:
+                _echo_json_error(exc.exit_code, str(exc))
             sys.exit(exc.exit_code)
         from hbake.guard import run_guarded
 
-        code = run_guarded(lambda: _bake_here(input, output, settings, report, force, quiet),
-                           output, report)
+        code = run_guarded(lambda: _bake_here(input, output, settings, report, force, quiet,
+                                              as_json), output, report)
     except KeyboardInterrupt:
         click.echo("hbake: interrupted", err=True)
         sys.exit(EXIT_INTERRUPTED)
@@ -117,7 +123,7 @@ def bake_command(input, output, config, sets, method, units, target_faces, atlas
     sys.exit(code)
 
 
-def _bake_here(input, output, settings, report, force, quiet) -> int:
+def _bake_here(input, output, settings, report, force, quiet, as_json=False) -> int:
     """The bake in this process; returns the exit code (messages already printed)."""
     from hbake.progress import Progress
 
@@ -130,13 +136,17 @@ def _bake_here(input, output, settings, report, force, quiet) -> int:
         progress.close()
         if report is not None:
             _write_json(report, result)
-        if not quiet:
+        if as_json:
+            click.echo(json.dumps({"ok": True, **result}, indent=2, sort_keys=True))
+        elif not quiet:
             print_summary(result)
         return 0
     except HbakeError as exc:
         if progress is not None:
             progress.close()
         click.echo(f"hbake: error: {exc}", err=True)
+        if as_json:
+            _echo_json_error(exc.exit_code, str(exc))
         return exc.exit_code
     except KeyboardInterrupt:
         if progress is not None:
@@ -151,6 +161,14 @@ def _bake_here(input, output, settings, report, force, quiet) -> int:
         click.echo(f"hbake: internal error: {type(exc).__name__}: {exc} "
                    f"(set HBAKE_DEBUG=1 for a traceback; please report it)", err=True)
         return EXIT_INTERNAL
+
+
+def _echo_json_error(code: int, message: str) -> None:
+    """--json's answer on a user error (stdout), beside the line on stderr."""
+    from hbake.batch import error_class
+
+    click.echo(json.dumps({"ok": False, "error": {"class": error_class(code), "exit_code": code,
+                                                  "message": message}}, sort_keys=True))
 
 
 def _raise_interrupt(signum, frame):
@@ -270,6 +288,11 @@ main.add_command(inspect)
 from hbake.bench import bench_command  # noqa: E402
 
 main.add_command(bench_command, "bench")
+
+from hbake.cli_batch import batch_command, report_command  # noqa: E402
+
+main.add_command(batch_command, "batch")
+main.add_command(report_command, "report")
 
 
 @main.command("generate", context_settings=CONTEXT)

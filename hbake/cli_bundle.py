@@ -19,7 +19,10 @@ __all__ = ["validate", "inspect"]
 
 @click.command("validate")
 @click.argument("bundle", type=click.Path(file_okay=True, dir_okay=True, path_type=str))
-def validate(bundle: str) -> None:
+@click.option("--json", "as_json", is_flag=True, default=False,
+              help="Print {path, valid, exit_code, problems: [{class, message}]} as JSON "
+                   "instead of the lines (same exit code).")
+def validate(bundle: str, as_json: bool = False) -> None:
     """Check BUNDLE against the format spec.
 
     Prints 'BUNDLE: OK', or one line 'BUNDLE: <class>: <message>' per problem
@@ -27,6 +30,12 @@ def validate(bundle: str) -> None:
     valid, else that of the first problem's class: io 10, version 11, schema 12,
     hash 13, mesh 14, atlas 15, pieces 16."""
     _, problems = check_bundle(bundle)
+    if as_json:
+        code = VALIDATE_EXIT[problems[0].cls] if problems else 0
+        click.echo(json.dumps({"path": bundle, "valid": not problems, "exit_code": code,
+                               "problems": [{"class": p.cls, "message": p.message}
+                                            for p in problems]}, indent=2, sort_keys=True))
+        sys.exit(code)
     if not problems:
         click.echo(f"{bundle}: OK")
         sys.exit(0)
