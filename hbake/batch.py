@@ -29,6 +29,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import tomllib
 from dataclasses import dataclass, field
@@ -336,6 +337,31 @@ def bake_command_line(job: dict) -> list[str]:
 
 _PRCTL = None
 
+#: The bake processes run_job has running in this process (terminate_running stops them).
+_RUNNING: set = set()
+_RUNNING_LOCK = threading.Lock()
+
+
+def terminate_running(timeout: float = 30.0) -> None:
+    """SIGTERM every running bake and wait for it: `hbake bake` then removes its
+    temporary bundle and exits 130, so an interrupted batch leaves nothing behind."""
+    with _RUNNING_LOCK:
+        procs = list(_RUNNING)
+    for proc in procs:
+        try:
+            proc.terminate()
+        except ProcessLookupError:
+            pass
+    # The threads of run_job reap them (one waiter per process: no double wait4).
+    t_end = time.monotonic() + timeout
+    while time.monotonic() < t_end:
+        with _RUNNING_LOCK:
+            if not _RUNNING:
+                return
+        time.sleep(0.02)
+    for proc in procs:
+        proc.kill()
+
 
 def _term_with_parent() -> None:
     """In the bake child: SIGTERM when the process that started it dies (a killed Dask
@@ -361,6 +387,8 @@ def run_job(job: dict) -> dict:
         env = dict(os.environ, NO_COLOR="1")
         proc = subprocess.Popen(bake_command_line(job), stdin=subprocess.DEVNULL, stdout=out,
                                 stderr=err, env=env, preexec_fn=_term_with_parent)
+        with _RUNNING_LOCK:
+            _RUNNING.add(proc)
         try:
             # wait4, not wait: this child's rusage, whose ru_maxrss covers the forked bake
             # process too (the kernel folds waited-for descendants in).
@@ -369,6 +397,9 @@ def run_job(job: dict) -> dict:
             proc.terminate()               # hbake bake removes its temporary on SIGTERM
             proc.wait()
             raise
+        finally:
+            with _RUNNING_LOCK:
+                _RUNNING.discard(proc)
         proc.returncode = code = os.waitstatus_to_exitcode(status)
         seconds = time.perf_counter() - t0
         out.seek(0)

@@ -21,7 +21,7 @@ import threading
 import uuid
 from typing import Callable
 
-from hbake.batch import MemoryModel, run_job
+from hbake.batch import MemoryModel, run_job, terminate_running
 
 
 class LocalExecutor:
@@ -49,6 +49,17 @@ class LocalExecutor:
             done.put((job, res))
 
         threads = []
+        try:
+            self._loop(pending, running, done, threads, work, finished)
+        except KeyboardInterrupt:
+            # SIGINT/SIGTERM of the batch: stop the running bakes (each removes its
+            # temporary) before the batch exits, instead of leaving them to finish.
+            terminate_running()
+            raise
+        for t in threads:
+            t.join()
+
+    def _loop(self, pending, running, done, threads, work, finished) -> None:
         while pending or running:
             # Admit in order while a slot and the memory budget allow; the first job
             # that does not fit waits (no overtaking, so the order stays predictable).
@@ -73,8 +84,6 @@ class LocalExecutor:
                 self.memory.observe(job, res["peak_rss_bytes"])
             res["attempts"] = 1
             finished(res)
-        for t in threads:
-            t.join()
 
 
 def _dask_job(job: dict) -> dict:
@@ -109,10 +118,16 @@ class DaskExecutor:
 
         if self.scheduler:
             return Client(self.scheduler, timeout="20s")
+        import dask
+
         # One single-threaded worker process per job slot: a bake uses its own cores
         # (embree, CoACD), so more threads per worker would only oversubscribe them.
-        self._cluster = LocalCluster(n_workers=self.jobs, threads_per_worker=1, processes=True,
-                                     dashboard_address=None, silence_logs=logging.ERROR)
+        # Saturation 1.0: a worker holds only the task it runs (bakes are long; a task
+        # queued on a worker that dies would die with it).
+        with dask.config.set({"distributed.scheduler.worker-saturation": 1.0}):
+            self._cluster = LocalCluster(n_workers=self.jobs, threads_per_worker=1,
+                                         processes=True, dashboard_address=None,
+                                         silence_logs=logging.ERROR)
         return Client(self._cluster)
 
     def run(self, jobs: list[dict], finished: Callable[[dict], None]) -> None:

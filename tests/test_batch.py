@@ -281,12 +281,15 @@ def test_examples_makefile_is_incremental(models, tmp_path):
 def dask_cluster():
     """A LocalCluster of two single-threaded worker processes under nannies (a killed
     worker is restarted). allowed-failures 0: the scheduler gives up on a task at the
-    first worker death, so hbake's own resubmission is what the test sees."""
+    first worker death, so hbake's own resubmission is what the test sees;
+    worker-saturation 1.0: a worker holds one task at a time, so the quick job is never
+    queued on the worker that is killed."""
     dask = pytest.importorskip("dask")
     distributed = pytest.importorskip("distributed")
     import logging
 
-    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0,
+                          "distributed.scheduler.worker-saturation": 1.0}):
         cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                            dashboard_address=None, silence_logs=logging.ERROR)
         client = distributed.Client(cluster)
@@ -297,19 +300,27 @@ def dask_cluster():
             cluster.close()
 
 
+def _executing(dask_worker) -> tuple[int, list[str]]:
+    """(pid, keys of the tasks this worker is executing now); run on each worker."""
+    return os.getpid(), [str(ts.key) for ts in dask_worker.state.executing]
+
+
 def _kill_worker_running(client, prefix: str, killed: list, timeout: float = 120.0) -> None:
-    """Wait until a task whose key starts with ``prefix`` runs on a worker, then SIGKILL
-    that worker process (its nanny restarts it)."""
+    """Wait until a task whose key starts with ``prefix`` is executing on a worker, then
+    SIGKILL that worker process (its nanny restarts it)."""
     t_end = time.time() + timeout
     while time.time() < t_end:
-        for addr, keys in client.processing().items():
-            if any(str(k).startswith(prefix) for k in keys):
+        try:
+            states = client.run(_executing)
+        except Exception:                # a worker coming or going: ask again
+            states = {}
+        for addr, (pid, keys) in states.items():
+            if any(k.startswith(prefix) for k in keys):
                 time.sleep(1.0)          # let the bake's child process start
-                pid = client.run(os.getpid, workers=[addr])[addr]
                 os.kill(pid, signal.SIGKILL)
                 killed.append((addr, pid))
                 return
-        time.sleep(0.05)
+        time.sleep(0.1)
 
 
 def _dask_batch(models_dir, out, cfg, scheduler, retries, prefix, client):
@@ -374,3 +385,35 @@ def test_dask_worker_killed_without_retries_is_reported(dask_cluster, dask_model
     assert m["slow.ply"]["status"] == "failed" and m["slow.ply"]["error_class"] == "worker-died"
     assert m["quick.ply"]["status"] == "baked"
     assert not (out / "slow.hbundle").exists()
+
+
+def test_batch_sigterm_stops_and_leaves_nothing_half_written(models, low_config, tmp_path):
+    """SIGTERM mid-batch: exit 130 at once; the running bakes get SIGTERM with their
+    parent (PR_SET_PDEATHSIG) and remove their temporaries; no report is half-written."""
+    src = tmp_path / "in"
+    src.mkdir()
+    blob(src / "slow.ply", 30.0, subdivisions=5)
+    out = tmp_path / "out"
+    cfg = tmp_path / "batch.toml"
+    cfg.write_text(LOW + '[models."slow.ply"]\nquality.samples = 20000\n')
+    proc = subprocess.Popen(hbake() + ["batch", str(src), "-o", str(out), "-c", str(cfg)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env())
+    import psutil
+
+    t_end = time.time() + 60
+    bakes = []
+    while time.time() < t_end and not bakes:   # until `hbake bake` runs under the batch
+        bakes = [c for c in psutil.Process(proc.pid).children(recursive=True)
+                 if "bake" in c.cmdline()]
+        time.sleep(0.05)
+    assert bakes, "the bake never started"
+    time.sleep(2.0)                              # well inside the bake (about 10 s)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=30)
+    assert proc.returncode == 130, stderr
+    assert stderr.strip().splitlines()[-1] == "hbake: interrupted"
+    t_end = time.time() + 15
+    while time.time() < t_end and list(out.iterdir()):
+        time.sleep(0.2)
+    assert list(out.iterdir()) == [], list(out.iterdir())
+    assert not any(b.is_running() and b.status() != psutil.STATUS_ZOMBIE for b in bakes)
