@@ -1,37 +1,30 @@
 #!/usr/bin/env bash
-# `make demo`: bake example models into haptic bundles, check them, and query two
-# of them in contact. Everything goes to out/demo (re-running rebakes with --force).
+# `make demo`: the paper's roughness-under-translation experiment (Sec. 6.3, Fig. 6b and
+# 7) end to end, on the CPU backend with a scripted device: bake the ridged block and
+# the ridged gear (hbake generate + hbake bake, once), run the session
+# examples/experiments/translation.toml with `hrt run` (lockstep, frictionless), write
+# the trace, the Fig. 7-style figure and a picture of the scene (`hbake plot`), and
+# print where they are with a short summary. Everything goes to out/experiments.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=.venv/bin
-OUT=out/demo
-mkdir -p "$OUT"
+OUT=out/experiments
+start=$(date +%s)
 
-echo "== 1. generate the procedural ridged block (65,536 triangles, the paper's Fig. 6a)"
-$BIN/hbake generate ridged_block "$OUT/ridged_block.ply"
+echo "== 1. make and bake the ridged block (65,536 triangles) and the ridged gear (25,600)"
+$BIN/python examples/experiments/models.py "$OUT" block gear
 
-echo "== 2. bake it: coarse mesh + haptic texture + convex pieces"
-$BIN/hbake bake "$OUT/ridged_block.ply" -o "$OUT/ridged_block.hbundle" --units m --force
+echo "== 2. run the translation experiment (3 s of session, 1 kHz lockstep, CPU backend)"
+$BIN/hrt run examples/experiments/translation.toml --backend cpu
 
-if [ -f ../shared/models/fandisk.obj ]; then
-  echo "== 2b. bake a real CAD model (../shared/models/fandisk.obj, file units taken as cm)"
-  $BIN/hbake bake ../shared/models/fandisk.obj -o "$OUT/fandisk.hbundle" --units cm --force
-fi
+echo "== 3. figures from the trace"
+$BIN/hbake plot "$OUT/translation.trace.csv" -o "$OUT/figures" --figure fig7 --figure scene \
+  --scene examples/experiments/translation.toml --frame 1800 --hrt "$BIN/hrt"
 
-echo "== 3. validate and inspect the bundle"
-$BIN/hbake validate "$OUT/ridged_block.hbundle"
-$BIN/hbake inspect "$OUT/ridged_block.hbundle"
-$BIN/hrt check "$OUT/ridged_block.hbundle"
-
-# Two copies of the block, ridges facing each other: A is turned upside down
-# (180 degrees about x: quaternion x y z w = 1 0 0 0) and moved to y = 60 mm so its
-# ridges line up with B's. Nested exactly at z = 40 mm; here it sits 0.2 mm lower and
-# 1 mm off the nested position along the ridge normal (y), so by the closed form
-# delta = 2 a |sin(pi s / lambda)| + 0.2 mm = 2 * 0.5 mm * sin(pi / 5) + 0.2 mm = 0.788 mm,
-# and the force on A pushes it up (+z) and back towards the nested position (-y).
-echo "== 4. query the two blocks in contact (A: upside down, 1 mm off the nested position, 0.2 mm low)"
-$BIN/hrt query "$OUT/ridged_block.hbundle" "$OUT/ridged_block.hbundle" \
-  --pose-a 0 0.061 0.0398 1 0 0 0 --pose-b 0 0 0 0 0 0 1 --stiffness 1000
-echo "closed form along z: delta = 0.788 mm, force on A up (+z) and back along -y. hrt measures delta"
-echo "along the patch normal n from the coarse collision detection, which the 1 mm offset of the two"
-echo "blocks' side walls tilts by a few degrees, on a 50 x 50 grid: expect a figure within ~10% of it."
+echo "== summary"
+$BIN/python examples/experiments/summary.py "$OUT/translation.trace.csv"
+echo "  trace:        $OUT/translation.trace.csv (docs/trace-format.md)"
+echo "  Fig. 7:       $OUT/figures/translation.trace.fig7.png"
+echo "  scene:        $OUT/figures/translation.trace.scene.png (frame 1800: block, gear, patch window, force)"
+echo "  other experiments: bash examples/experiments/run.sh rotation|scraping|hammer|all"
+echo "  demo took $(( $(date +%s) - start )) s"

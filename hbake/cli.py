@@ -289,6 +289,14 @@ from hbake.bench import bench_command  # noqa: E402
 
 main.add_command(bench_command, "bench")
 
+from hbake.texture import texture_command  # noqa: E402
+
+main.add_command(texture_command, "texture")
+
+from hbake.plot import plot_command  # noqa: E402
+
+main.add_command(plot_command, "plot")
+
 from hbake.cli_batch import batch_command, report_command  # noqa: E402
 
 main.add_command(batch_command, "batch")
