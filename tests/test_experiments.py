@@ -289,3 +289,39 @@ def test_rotation_lifts_the_block_and_the_torque_opposes_it(sine, tmp_path):
     assert m.sum() >= 1000 and (th > math.radians(1)).any() and (th < -math.radians(1)).any()
     assert ratio.min() >= LIFT_FRACTION
     assert opp.all()
+
+
+def _hbake(*args):
+    import sys
+    cmd = [sys.executable, "-c", "import sys; from hbake.cli import main; sys.argv[0] = 'hbake'; main()",
+           *map(str, args)]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+
+
+def test_plot_draws_every_figure_of_a_session_trace(sine, tmp_path):
+    """`hbake plot` (item 4) on a trace of `hrt run`: the four PNGs, and one-line errors."""
+    start = origin_for(0.0, L / 4, -PRESS + 2 * AMP * math.sin(math.pi / 4))
+    run(tmp_path, "short", sine, [(0.0, start, FLIP), (0.3, start + 1 * MM * T, FLIP)], 0.3)
+    out = tmp_path / "figs"
+    out.mkdir()
+    res = _hbake("plot", tmp_path / "short.csv", "-o", out, "--figure", "all", "--scene", tmp_path / "short.toml",
+                 "--frame", "150", "--hrt", S.hrt_binary())
+    assert res.returncode == 0, res.stderr
+    names = sorted(p.name for p in out.iterdir())
+    assert names == [f"short.{f}.png" for f in ("fig7", "fig8", "fig9", "scene")]
+    for p in out.iterdir():
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000
+    # The same trace, the same figure (no date or version in the PNG).
+    again = tmp_path / "again"
+    again.mkdir()
+    assert _hbake("plot", tmp_path / "short.csv", "-o", again, "--figure", "fig7").returncode == 0
+    assert (again / "short.fig7.png").read_bytes() == (out / "short.fig7.png").read_bytes()
+    # A trace without a column a figure needs, and a missing trace: one line, exit 4 / 3.
+    lines = (tmp_path / "short.csv").read_text().splitlines()
+    cols = lines[0].split(",")
+    keep = [i for i, c in enumerate(cols) if c != "contact_fz"]
+    (tmp_path / "cut.csv").write_text("\n".join(",".join(r.split(",")[i] for i in keep) for r in lines) + "\n")
+    res = _hbake("plot", tmp_path / "cut.csv", "-o", out, "--figure", "fig7")
+    assert res.returncode == 4 and res.stderr.count("\n") == 1 and "contact_fz" in res.stderr
+    res = _hbake("plot", tmp_path / "none.csv", "-o", out)
+    assert res.returncode == 3 and "none.csv" in res.stderr
