@@ -153,17 +153,7 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
     triangle = np.full((H, W), -1, dtype=np.int64)
     triangle[ys, xs] = t_ids
 
-    # Gutter: texels within `gutter` (Chebyshev) of a covered texel that no ray baked take
-    # the value of the nearest baked texel.
-    cheb = ndimage.distance_transform_cdt(~covered, metric="chessboard")
-    # texels a bilinear lookup inside a triangle can read lie within sqrt(2) of it
-    readable = baked & (dist <= math.sqrt(2.0) + 1e-9)
-    gutter = int(max(atlas.gutter, cheb[readable].max(initial=0)))
-    fill = (~baked) & (cheb <= gutter)
-    if fill.any():
-        idx = ndimage.distance_transform_edt(~baked, return_distances=False, return_indices=True)
-        fy, fx = np.nonzero(fill)
-        image[fy, fx, :3] = image[idx[0][fy, fx], idx[1][fy, fx], :3]
+    gutter = fill_gutter(image, covered, baked, dist, atlas.gutter)
 
     # Displacement bounds: signed distance (outward positive) of every baked point that a
     # lookup can read to the coarse surface. (Not the height over the texel's own
@@ -179,6 +169,24 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
                       displacement_outward=outward, displacement_inward=inward,
                       rays=int(len(t_ids)), fallbacks=int((~hit & inside).sum()),
                       border_fallbacks=int((~hit & ~inside).sum()), jumps=jumps)
+
+
+def fill_gutter(image: np.ndarray, covered: np.ndarray, baked: np.ndarray, dist: np.ndarray,
+                gutter_setting: int) -> int:
+    """Gutter (both routes): texels within the gutter (Chebyshev) of a covered texel that
+    were not baked take the value of the nearest baked texel, in place. The gutter is
+    widened to hold every texel a lookup inside a UV triangle can read (``dist``: texels
+    to the nearest UV triangle; such texels lie within sqrt(2) of it). Returns the
+    effective gutter."""
+    cheb = ndimage.distance_transform_cdt(~covered, metric="chessboard")
+    readable = baked & (dist <= math.sqrt(2.0) + 1e-9)
+    gutter = int(max(gutter_setting, cheb[readable].max(initial=0)))
+    fill = (~baked) & (cheb <= gutter)
+    if fill.any():
+        idx = ndimage.distance_transform_edt(~baked, return_distances=False, return_indices=True)
+        fy, fx = np.nonzero(fill)
+        image[fy, fx, :3] = image[idx[0][fy, fx], idx[1][fy, fx], :3]
+    return gutter
 
 
 def _origins(corners3, bary, inside, uvs, t_ids, xs, ys, W, H, texel_size):

@@ -52,6 +52,8 @@ __all__ = [
 
 FORMAT_NAME = "hbundle"
 FORMAT_VERSION = "1.1"
+#: The version of bundles whose manifest has the "route" field (method pp or auto).
+FORMAT_VERSION_ROUTE = "1.2"
 FORMAT_MAJOR = 1
 
 #: Fixed file names inside a bundle (the manifest's ``files.*.path`` may name others).
@@ -970,7 +972,9 @@ def _write_files(tmp: Path, data: BundleData, compression: str) -> dict:
     files["atlas"].update(width=int(w), height=int(h), channels=list(ATLAS_CHANNELS),
                           pixel_type="float", compression=compression)
     manifest = dict(data.manifest)
-    manifest.update(format=FORMAT_NAME, format_version=FORMAT_VERSION, files=files)
+    # 1.2 adds the optional "route" (hbake/preserve.py); bundles without it stay 1.1
+    version = FORMAT_VERSION_ROUTE if "route" in manifest else FORMAT_VERSION
+    manifest.update(format=FORMAT_NAME, format_version=version, files=files)
     blob = manifest_bytes(manifest)
     (tmp / names["manifest"]).write_bytes(blob)
     for key in names.values():

@@ -64,8 +64,11 @@ def _parse_atlas_size(ctx, param, value):
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override any setting, e.g. --set simplify.quality_threshold=0.5 "
                    "(repeatable; VALUE is a TOML value).")
-@click.option("--method", type=click.Choice(["cage", "pp"]),
-              help="Baking route [default: cage]; 'pp' is reserved.")
+@click.option("--method", type=click.Choice(["cage", "pp", "preserve", "auto"]),
+              help="Baking route [default: cage]: 'cage' (rays from the coarse mesh), "
+                   "'preserve' or 'pp' (parameterization-preserving simplification, "
+                   "Sec. 6.1; exit 9 when it cannot reach --target-faces), 'auto' (both; "
+                   "the manifest's route says which was kept and why).")
 @click.option("--units", type=click.Choice(["mm", "cm", "m", "in"]),
               help="Unit of the input coordinates [default: from the file, else meters "
                    "with a warning].")

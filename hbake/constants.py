@@ -224,3 +224,35 @@ RELIEF_WARN_P95_TEXELS = 0.5
 
 # --- seeds ---------------------------------------------------------------------------------
 DEFAULT_SEED = 0
+
+# --- the parameterization-preserving route (hbake/preserve.py) -----------------------------
+#: Proxy size whose charts are carried to the full mesh; 0 = simplify.target_faces (the
+#: proxy is then the cage route's coarse mesh, whose xatlas charts take well under a second).
+DEFAULT_PRESERVE_PROXY_FACES = 0
+#: xatlas padding of the proxy's charts (texels): a folded coarse UV triangle leaves its
+#: chart by up to 2.7 texels (measured on the wrinkled torus at 2,000 triangles), so 6
+#: keeps it 3 texels clear of the next chart (the cage route's default is 2).
+DEFAULT_PRESERVE_PADDING = 6
+#: meshoptimizer's weight of the UVs (in meters on the surface) against positions: 1
+#: weighs a texel of UV error like a texel of position error.
+DEFAULT_PRESERVE_UV_WEIGHT = 1.0
+#: Closest faces are searched among this many nearest centroids (exact on the proxy's and
+#: the full mesh's well-shaped triangles; more costs time linearly).
+PRESERVE_NEAREST_FACES = 16
+#: --method auto takes the preserve route when it reaches the target and both
+#: reconstruction errors (p95) are within this many of its texel sizes: the texture's own
+#: resolution (half a texel is the relief warning's level, one texel the off-surface bound
+#: of issue 11's tests).
+DEFAULT_AUTO_MAX_ERROR_TEXELS = 1.0
+#: Reruns of meshoptimizer with the vertices of pinched edges locked (one sufficed on
+#: every model measured; more only costs time).
+PRESERVE_PINCH_ROUNDS = 2
+#: Samples per direction of the reconstruction error on which --method auto chooses:
+#: fewer than the quality stage's 100,000 (a p95 needs far fewer, and auto measures two
+#: routes), seeded like it.
+AUTO_SAMPLES = 20_000
+#: Seeded sample points per coarse face (besides corners and edge midpoints) at which the
+#: preserve route checks that its UV lies inside its chart, and how far outside (texels)
+#: counts as leaving it (float32 UVs are exact to 1e-4 texel on a 1024 atlas).
+PRESERVE_CONTAIN_SAMPLES = 16
+PRESERVE_CONTAIN_TEXELS = 1e-3

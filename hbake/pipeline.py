@@ -12,9 +12,11 @@ Cage-bake route (``method = "cage"``), data flow per stage:
     quality      all of the above             -> reconstruction errors, hull measures
     write        everything                   -> OUT.hbundle (atomic, byte-deterministic)
 
-The parameterization-preserving route of the paper (Sec. 6.1, ``method = "pp"``) is
-reserved: the settings and the manifest name the method, and route-specific options
-sit in a table of their own (``[cage]`` here), so it can be added beside this one.
+The parameterization-preserving route of the paper (Sec. 6.1, ``method = "pp"``, alias
+``preserve``) replaces simplify, parameterize and bake by hbake/preserve.py's stages
+(proxy, charts, transfer, simplify, bake; shown as "pp ..."); ``method = "auto"`` runs
+both and keeps one (``_preserve_or_auto``). The manifest's ``route`` (format 1.2) says
+which and why; decompose, mass, quality and write are shared.
 """
 from __future__ import annotations
 
@@ -32,8 +34,9 @@ from hbake import __version__
 from hbake.atlas import bake_atlas
 from hbake.bundle import BundleData, remove_stale_temporaries, write_bundle
 from hbake.decompose import decompose
-from hbake.errors import (EXIT_USAGE, ConfigError, HbakeError, OutputExistsError,
-                          OutputUnwritableError)
+from hbake import constants as C
+from hbake.errors import (EXIT_USAGE, HbakeError, OutputExistsError, OutputUnwritableError,
+                          TargetUnreachableError)
 from hbake.geometry import face_areas, signed_volumes
 from hbake.load import load_mesh
 from hbake.mass import mass_properties
@@ -83,9 +86,6 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
     exception (KeyboardInterrupt included) nothing is left at ``output``.
     """
     settings = settings or BakeSettings()
-    if settings.method == "pp":
-        raise ConfigError("method 'pp' (parameterization-preserving simplification, "
-                          "Sec. 6.1 of the paper) is not implemented yet; use method = 'cage'")
     output = Path(output)
     check_output(output, force)
     progress = progress or Progress(quiet=True)
@@ -102,34 +102,16 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
 
     with progress.stage("load"):
         full = load_mesh(input, settings.load, warn=warn)
-    with progress.stage("simplify"):
-        coarse = simplify(full.vertices, full.faces, settings.simplify,
-                          input_closed=full.closed, warn=warn)
-    # An open coarse mesh is decomposed (and weighed) with its holes capped.
-    solid = (coarse.vertices, coarse.faces) if coarse.closed else cap_holes(coarse.vertices, coarse.faces)
-    if not coarse.closed and solid is not None:
-        warn(f"the coarse mesh is open: its holes were capped ({len(solid[1]) - len(coarse.faces)} "
-             f"triangles, not stored) for the convex pieces and the mass properties")
-    elif not coarse.closed:
-        warn("the coarse mesh is open and its holes could not be capped: CoACD remeshes it "
-             "(slower, pieces approximate a shell) and mass properties fall back further")
-    # CoACD needs only the coarse mesh and releases the GIL, so it runs in a thread while
-    # xatlas and embree work: on the 650k CAD part that hides most of its 6.5 s. Its
-    # warnings are collected and emitted after it, so their order stays deterministic.
-    decomposer = _Background(lambda: decompose(coarse.vertices, coarse.faces, settings.decompose,
-                                               seed=settings.seed, solid=solid))
-    decomposer.start()
-    with progress.stage("parameterize"):
-        param = parameterize(coarse.vertices, coarse.faces, settings.parameterize)
-    with progress.stage("bake", total=1.0) as update:
-        baked = bake_atlas(coarse.vertices, coarse.faces, param.uvs, param.width, param.height,
-                           full.vertices, full.faces, settings.cage, settings.atlas,
-                           progress=update)
-        covered = int(baked.covered.sum())
-        if baked.fallbacks > FALLBACK_WARN_FRACTION * covered:
-            warn(f"{baked.fallbacks} of {covered} covered texels ({100 * baked.fallbacks / covered:.1f}%) "
-                 f"found no surface along the normal within {settings.cage.max_ray_distance:g} of the "
-                 f"bbox diagonal and use the closest point instead")
+    route = None
+    if settings.method == "cage":
+        with progress.stage("simplify"):
+            coarse = simplify(full.vertices, full.faces, settings.simplify,
+                              input_closed=full.closed, warn=warn)
+        solid, decomposer = _start_decompose(coarse, settings, warn)
+        param, baked = _cage_atlas(full, coarse, settings, progress, warn)
+    else:
+        coarse, param, baked, route = _preserve_or_auto(input, full, settings, progress, warn)
+        solid, decomposer = _start_decompose(coarse, settings, warn)
     with progress.stage("decompose"):
         pieces = decomposer.result()
         for w in pieces.warnings:
@@ -157,7 +139,7 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
             warn(w)
 
     manifest = assemble_manifest(settings, full, coarse, param, baked, pieces, mass, quality,
-                                 warnings)
+                                 warnings, route)
     data = BundleData(
         coarse_vertices=coarse.vertices,
         coarse_faces=coarse.faces.astype(np.uint32),
@@ -183,6 +165,108 @@ def bake(input, output, settings: BakeSettings | None = None, progress: Progress
                  "border_fallbacks": baked.border_fallbacks,
                  "simplify_scores": coarse.scores},
     }
+
+
+def _start_decompose(coarse, settings, warn):
+    """The coarse mesh's solid (holes capped where open) and the CoACD thread."""
+    # An open coarse mesh is decomposed (and weighed) with its holes capped.
+    solid = (coarse.vertices, coarse.faces) if coarse.closed else cap_holes(coarse.vertices, coarse.faces)
+    if not coarse.closed and solid is not None:
+        warn(f"the coarse mesh is open: its holes were capped ({len(solid[1]) - len(coarse.faces)} "
+             f"triangles, not stored) for the convex pieces and the mass properties")
+    elif not coarse.closed:
+        warn("the coarse mesh is open and its holes could not be capped: CoACD remeshes it "
+             "(slower, pieces approximate a shell) and mass properties fall back further")
+    # CoACD needs only the coarse mesh and releases the GIL, so it runs in a thread while
+    # xatlas and embree work: on the 650k CAD part that hides most of its 6.5 s. Its
+    # warnings are collected and emitted after it, so their order stays deterministic.
+    decomposer = _Background(lambda: decompose(coarse.vertices, coarse.faces, settings.decompose,
+                                               seed=settings.seed, solid=solid))
+    decomposer.start()
+    return solid, decomposer
+
+
+def _cage_atlas(full, coarse, settings, progress, warn):
+    """The cage route's parameterize and bake stages."""
+    with progress.stage("parameterize"):
+        param = parameterize(coarse.vertices, coarse.faces, settings.parameterize)
+    with progress.stage("bake", total=1.0) as update:
+        baked = bake_atlas(coarse.vertices, coarse.faces, param.uvs, param.width, param.height,
+                           full.vertices, full.faces, settings.cage, settings.atlas,
+                           progress=update)
+        covered = int(baked.covered.sum())
+        if baked.fallbacks > FALLBACK_WARN_FRACTION * covered:
+            warn(f"{baked.fallbacks} of {covered} covered texels ({100 * baked.fallbacks / covered:.1f}%) "
+                 f"found no surface along the normal within {settings.cage.max_ray_distance:g} of the "
+                 f"bbox diagonal and use the closest point instead")
+    return param, baked
+
+
+def route_errors(full, coarse, param, baked, samples: int, seed: int) -> dict:
+    """The two-way reconstruction error (p95, in the route's texel sizes) on which
+    ``method = "auto"`` chooses (hbake/quality.py's measures, on fewer samples)."""
+    from hbake.parameterize import chart_labels
+    from hbake.quality import coarse_to_full, full_to_coarse, reconstructed_mesh
+
+    rng_c, rng_f = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    d_cf = coarse_to_full(coarse.vertices, coarse.faces, param.uvs, baked.image, full.vertices,
+                          full.faces, samples, rng_c)
+    rv, rf = reconstructed_mesh(baked.image, baked.triangle, baked.baked,
+                                chart_labels(coarse.faces, np.asarray(param.uvs)))
+    d_fc = full_to_coarse(full.vertices, full.faces, rv, rf, samples, rng_f)
+    t = baked.texel_size
+    return {"triangles": int(len(coarse.faces)), "texel_size": float(t),
+            "coarse_to_full_p95_texels": float(np.percentile(d_cf, 95) / t),
+            "full_to_coarse_p95_texels": float(np.percentile(d_fc, 95) / t)}
+
+
+def _preserve_or_auto(input, full, settings, progress, warn):
+    """``method = "pp"``: the preserve route (TargetUnreachableError propagates).
+    ``method = "auto"``: both routes; the preserve bundle when it reaches the target and
+    both reconstruction errors (p95) are within ``preserve.auto_max_error`` texels, else
+    the cage bundle. Returns (coarse, param, baked, manifest["route"])."""
+    from hbake.preserve import bake_preserve
+
+    name = Path(input).name
+    target = settings.simplify.target_faces
+    pp = pp_error = None
+    try:
+        pp = bake_preserve(full.vertices, full.faces, settings, input_name=name,
+                           input_closed=full.closed, stage=lambda n, t=None: progress.stage(f"pp {n}", t),
+                           warn=warn if settings.method == "pp" else None)
+    except TargetUnreachableError as exc:
+        if settings.method == "pp":
+            raise
+        pp_error = str(exc)
+    if settings.method == "pp":
+        return pp.coarse, pp.param, pp.baked, {"requested": "pp", "chosen": "pp",
+                                               "reason": "asked for", "pp": pp.stats}
+    with progress.stage("cage simplify"):
+        cage_coarse = simplify(full.vertices, full.faces, settings.simplify,
+                               input_closed=full.closed, warn=warn)
+    cage_param, cage_baked = _cage_atlas(full, cage_coarse, settings, progress, warn)
+    bound = settings.preserve.auto_max_error
+    with progress.stage("auto choice"):
+        cage_err = route_errors(full, cage_coarse, cage_param, cage_baked, C.AUTO_SAMPLES, settings.seed)
+        cands = {"cage": cage_err}
+        if pp is not None:
+            pp_err = route_errors(full, pp.coarse, pp.param, pp.baked, C.AUTO_SAMPLES, settings.seed)
+            cands["pp"] = {**pp_err, **pp.stats}
+            worst = max(pp_err["coarse_to_full_p95_texels"], pp_err["full_to_coarse_p95_texels"])
+            if worst <= bound:
+                reason = (f"the preserve route reached {pp_err['triangles']} triangles (target "
+                          f"{target}) with a reconstruction error of {worst:.3g} texel (p95, "
+                          f"the worse way), within the bound of {bound:g}")
+                return pp.coarse, pp.param, pp.baked, {"requested": "auto", "chosen": "pp",
+                                                       "reason": reason, "candidates": cands}
+            reason = (f"the preserve route's reconstruction error is {worst:.3g} texel (p95, the "
+                      f"worse way), above the bound of {bound:g}: the cage route is used")
+        else:
+            cands["pp"] = {"error": pp_error}
+            reason = f"the preserve route cannot reach the target ({pp_error}): the cage route is used"
+    warn(reason)
+    return cage_coarse, cage_param, cage_baked, {"requested": "auto", "chosen": "cage",
+                                                 "reason": reason, "candidates": cands}
 
 
 class _Background:
@@ -226,9 +310,10 @@ def _vec(x) -> list[float]:
 
 
 def assemble_manifest(settings, full, coarse, param, baked, pieces, mass, quality,
-                      warnings) -> dict:
-    """All manifest fields except format, format_version and files (write_bundle's)."""
-    return {
+                      warnings, route=None) -> dict:
+    """All manifest fields except format, format_version and files (write_bundle's).
+    ``route`` (format 1.2): which route made the bundle and why (``method`` pp or auto)."""
+    out = {
         "generator": {"name": "hbake", "version": __version__},
         "units": {"length": "m", "source_unit": full.source_unit,
                   "scale_to_meters": float(full.scale_to_meters)},
@@ -259,3 +344,14 @@ def assemble_manifest(settings, full, coarse, param, baked, pieces, mass, qualit
         "quality": quality,
         "warnings": list(warnings),
     }
+    if route is not None:
+        out["route"] = route
+        # the preserve route's simplifier decides its bytes too (cage manifests unchanged)
+        try:
+            out["libraries"]["meshoptimizer"] = metadata.version("meshoptimizer")
+        except metadata.PackageNotFoundError:
+            out["libraries"]["meshoptimizer"] = "unknown"
+    # the route that made the bundle ("pp" or "cage"; "auto" is a setting, not a route)
+    if route is not None:
+        out["method"] = route["chosen"]
+    return out

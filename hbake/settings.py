@@ -7,9 +7,10 @@ table per stage), onto ``--set SECTION.KEY=VALUE`` on the command line, and onto
 default (taken from ``hbake.constants``) in its metadata; ``describe()`` lists them.
 
 Route-specific options live in a table named after the route: ``[cage]`` holds the
-options of the cage bake (``method = "cage"``); the parameterization-preserving route
-(``method = "pp"``, not implemented yet) will get a ``[pp]`` table beside it, while the
-shared stages (load, simplify, parameterize, atlas, decompose, quality) keep theirs.
+options of the cage bake (``method = "cage"``), ``[preserve]`` those of the
+parameterization-preserving route (``method = "pp"``, alias ``"preserve"``; hbake/preserve.py)
+and of ``method = "auto"``, while the shared stages (load, simplify, parameterize, atlas,
+decompose, quality) keep theirs.
 """
 from __future__ import annotations
 
@@ -114,6 +115,34 @@ class CageSettings(_Validated):
 
 
 @dataclass(frozen=True)
+class PreserveSettings(_Validated):
+    proxy_faces: int = _opt(C.DEFAULT_PRESERVE_PROXY_FACES, "Preserve route: triangle count "
+                            "of the low-pass proxy whose xatlas charts are carried to the "
+                            "full mesh (0 = simplify.target_faces).", lo=0)
+    seams: str = _opt("corners", "Preserve route: how chart borders are kept. 'corners' "
+                      "(seam vertices moved onto the proxy chart's outline in UV, its "
+                      "corners locked, meshoptimizer collapses along the straight stretches: "
+                      "coarse UVs stay inside their charts); 'locked' (every border vertex "
+                      "kept: exact, but a chart's outline bounds the triangle count from "
+                      "below); 'free' (meshoptimizer collapses along the seams unhindered: "
+                      "coarse UV triangles may leave their chart by several texels).",
+                      choices=("corners", "locked", "free"))
+    padding: int = _opt(C.DEFAULT_PRESERVE_PADDING, "Preserve route: texels between the "
+                        "proxy's charts (xatlas padding; replaces parameterize.padding): "
+                        "meshoptimizer checks flips in 3D only, and coarse UV triangles "
+                        "folded in UV leave their chart by up to 2.7 texels on the wrinkled "
+                        "torus, so charts are kept farther apart than the cage route's.",
+                        lo=2, hi=64)
+    uv_weight: float = _opt(C.DEFAULT_PRESERVE_UV_WEIGHT, "Preserve route: meshoptimizer's "
+                            "weight of the UV error (meters on the surface) against the "
+                            "position error.", lo=0.0)
+    auto_max_error: float = _opt(C.DEFAULT_AUTO_MAX_ERROR_TEXELS, "--method auto: the "
+                                 "preserve route is taken when it reaches the target and "
+                                 "both reconstruction errors (p95) are within this many "
+                                 "texel sizes.", lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True)
 class AtlasSettings(_Validated):
     gutter: int = _opt(C.DEFAULT_GUTTER, "Texels (Chebyshev) around covered texels "
                        "filled by dilation.", lo=2, hi=64)
@@ -156,12 +185,14 @@ SECTIONS: dict[str, type] = {
     "simplify": SimplifySettings,
     "parameterize": ParameterizeSettings,
     "cage": CageSettings,
+    "preserve": PreserveSettings,
     "atlas": AtlasSettings,
     "decompose": DecomposeSettings,
     "quality": QualitySettings,
 }
 
-METHODS = ("cage", "pp")
+#: "preserve" is an alias of "pp" (stored as "pp", the name 1.0 readers know).
+METHODS = ("cage", "pp", "preserve", "auto")
 
 
 @dataclass(frozen=True)
@@ -169,18 +200,27 @@ class BakeSettings(_Validated):
     """Everything ``hbake.bake`` needs besides the input and output paths."""
 
     method: str = _opt("cage", "Baking route: 'cage' (simplify, parameterize the coarse "
-                       "mesh, cast rays to the full mesh) or 'pp' (parameterization-"
-                       "preserving simplification, Sec. 6.1; not implemented yet).",
-                       choices=METHODS)
+                       "mesh, cast rays to the full mesh), 'pp' or its alias 'preserve' "
+                       "(parameterization-preserving simplification, Sec. 6.1: chart a "
+                       "proxy, carry the charts to the full mesh, rasterize it, simplify "
+                       "with chart borders locked), or 'auto' (both; keep the preserve "
+                       "bundle when it reaches the target within preserve.auto_max_error, "
+                       "else the cage one).", choices=METHODS)
     seed: int = _opt(C.DEFAULT_SEED, "Seed of CoACD and of the quality sampling.",
                      lo=0, hi=2**31 - 1)
     load: LoadSettings = field(default_factory=LoadSettings)
     simplify: SimplifySettings = field(default_factory=SimplifySettings)
     parameterize: ParameterizeSettings = field(default_factory=ParameterizeSettings)
     cage: CageSettings = field(default_factory=CageSettings)
+    preserve: PreserveSettings = field(default_factory=PreserveSettings)
     atlas: AtlasSettings = field(default_factory=AtlasSettings)
     decompose: DecomposeSettings = field(default_factory=DecomposeSettings)
     quality: QualitySettings = field(default_factory=QualitySettings)
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.method == "preserve":
+            object.__setattr__(self, "method", "pp")
 
     # --- conversions -------------------------------------------------------------------
     def to_dict(self) -> dict:

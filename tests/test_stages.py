@@ -757,11 +757,16 @@ def test_map_triangles_against_sampling():
     assert 0 < mapped.sum() < len(F)
 
 
-def test_pp_method_refused(tmp_path, small_model):
+def test_pp_method_unreachable_leaves_nothing(tmp_path, small_model):
+    """Issue 11 implements method 'pp' (tests/test_preserve.py); a target it cannot reach
+    with every chart border locked is its own error and writes nothing."""
+    from hbake.errors import TargetUnreachableError
     from hbake.pipeline import bake
 
-    with pytest.raises(ConfigError, match="not implemented yet"):
-        bake(small_model, tmp_path / "x.hbundle", BakeSettings(method="pp"))
+    s = BakeSettings(method="pp").with_overrides({"simplify.target_faces": 4,
+                                                  "preserve.seams": "locked"})
+    with pytest.raises(TargetUnreachableError, match="cannot reach 4 triangles"):
+        bake(small_model, tmp_path / "x.hbundle", s)
     assert not (tmp_path / "x.hbundle").exists()
 
 
