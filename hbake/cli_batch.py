@@ -126,7 +126,10 @@ def batch_command(inputs, out_dir, jobs, config, memory_budget, executor, schedu
 
             budget = memory_budget or int(DEFAULT_MEMORY_FRACTION * available_memory())
             ex = LocalExecutor(n, budget, log)
-        report = run_batch(todo, ex, log=log)
+        try:
+            report = run_batch(todo, ex, log=log)
+        except HbakeError as exc:
+            _fail(exc, as_json)
         # The whole batch, the up-to-date checks (hashing every mesh) included.
         report["wall_seconds"] = round(time.perf_counter() - t_start, 3)
         try:

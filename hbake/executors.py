@@ -22,6 +22,10 @@ import uuid
 from typing import Callable
 
 from hbake.batch import MemoryModel, run_job, terminate_running
+from hbake.errors import EXIT_USAGE, HbakeError
+
+#: How long the client tries to reach a --scheduler before the batch fails (exit 2).
+CONNECT_TIMEOUT = "10s"
 
 
 class LocalExecutor:
@@ -114,10 +118,17 @@ class DaskExecutor:
     def _client(self):
         import logging
 
-        from distributed import Client, LocalCluster
-
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError:
+            raise HbakeError("--executor dask needs dask.distributed: pip install 'hbake[dask]'",
+                             EXIT_USAGE) from None
         if self.scheduler:
-            return Client(self.scheduler, timeout="20s")
+            try:
+                return Client(self.scheduler, timeout=CONNECT_TIMEOUT)
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise HbakeError(f"--scheduler {self.scheduler}: cannot reach the Dask scheduler "
+                                 f"within {CONNECT_TIMEOUT}: {exc}", EXIT_USAGE) from None
         import dask
 
         # One single-threaded worker process per job slot: a bake uses its own cores

@@ -372,6 +372,19 @@ def test_dask_worker_killed_mid_job_is_retried(dask_cluster, dask_models, tmp_pa
     assert proc.returncode == 0 and json.loads(proc.stdout)["counts"]["skipped"] == 2
 
 
+def test_dask_unreachable_scheduler_is_one_line(models, low_config, tmp_path):
+    pytest.importorskip("distributed")
+    src = tmp_path / "in"
+    src.mkdir()
+    shutil.copy(models / "a.ply", src / "a.ply")
+    proc = run(["batch", src, "-o", tmp_path / "out", "-c", low_config, "--executor", "dask",
+                "--scheduler", "tcp://127.0.0.1:9", "--json"], timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    line = [ln for ln in proc.stderr.splitlines() if ln.startswith("hbake: error: ")]
+    assert len(line) == 1 and "tcp://127.0.0.1:9" in line[0] and "Traceback" not in proc.stderr
+    assert json.loads(proc.stdout)["error"]["class"] == "usage"
+
+
 def test_dask_worker_killed_without_retries_is_reported(dask_cluster, dask_models, tmp_path):
     cluster, client = dask_cluster
     src, cfg = dask_models
