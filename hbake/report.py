@@ -86,10 +86,22 @@ def _set_equal_3d(ax, pts: np.ndarray) -> None:
     ax.set_axis_off()
 
 
+def piece_colours(n: int) -> np.ndarray:
+    """(n, 4) RGBA, one per piece: hues stepped by the golden ratio, so consecutive pieces
+    (which CoACD tends to place side by side) differ strongly for any n, unlike a
+    qualitative colour map that repeats after 10 or 20."""
+    from matplotlib.colors import hsv_to_rgb
+
+    k = np.arange(n)
+    hsv = np.stack([(k * 0.6180339887498949) % 1.0, 0.55 + 0.3 * (k % 2),
+                    0.95 - 0.2 * ((k // 2) % 2)], axis=1)
+    return np.hstack([hsv_to_rgb(hsv), np.ones((n, 1))])
+
+
 def _draw_pieces(plt, b, path: Path) -> None:
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    colours = plt.get_cmap("tab20")
+    colours = piece_colours(len(b.piece_vertices))
     fig = plt.figure(figsize=(10, 5), dpi=100)
     v, f = b.coarse_vertices, b.coarse_faces.astype(np.int64)
     # Left: the coarse mesh, each triangle in the colour of the first piece that lists it
@@ -98,7 +110,7 @@ def _draw_pieces(plt, b, path: Path) -> None:
     for p, cf in enumerate(b.piece_coarse_faces):
         free = cf[owner[cf] < 0]
         owner[free] = p
-    face_col = [colours(o % 20) if o >= 0 else (0.7, 0.7, 0.7, 1.0) for o in owner]
+    face_col = [colours[o] if o >= 0 else (0.7, 0.7, 0.7, 1.0) for o in owner]
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     ax.add_collection3d(Poly3DCollection(v[f], facecolors=face_col, edgecolors=(0, 0, 0, 0.3),
                                          linewidths=0.3))
@@ -107,7 +119,7 @@ def _draw_pieces(plt, b, path: Path) -> None:
     ax.set_title(f"coarse mesh: {len(f)} triangles, coloured by piece")
     ax = fig.add_subplot(1, 2, 2, projection="3d")
     for p, (pv, pf) in enumerate(zip(b.piece_vertices, b.piece_faces)):
-        ax.add_collection3d(Poly3DCollection(pv[pf.astype(np.int64)], facecolors=colours(p % 20),
+        ax.add_collection3d(Poly3DCollection(pv[pf.astype(np.int64)], facecolors=colours[p],
                                              edgecolors=(0, 0, 0, 0.25), linewidths=0.3, alpha=0.9))
     _set_equal_3d(ax, np.vstack(b.piece_vertices))
     ax.view_init(elev=25, azim=-60)
@@ -140,7 +152,8 @@ def texel_heights(b) -> np.ndarray:
 def _draw_atlas(plt, b, pos_path: Path, height_path: Path) -> dict:
     a = b.atlas.astype(np.float64)
     rgb, alpha = a[..., :3], a[..., 3]
-    filled = np.isfinite(rgb).all(axis=2) & (np.abs(rgb).sum(axis=2) > 0) | (alpha == 1)
+    # Covered texels and the filled gutter (finite, not the 0 of texels far from any chart).
+    filled = (np.isfinite(rgb).all(axis=2) & (np.abs(rgb).sum(axis=2) > 0)) | (alpha == 1)
     lo = rgb[filled].min(axis=0) if filled.any() else np.zeros(3)
     hi = rgb[filled].max(axis=0) if filled.any() else np.ones(3)
     img = np.where(filled[..., None], (rgb - lo) / np.maximum(hi - lo, 1e-300), 0.0)
