@@ -18,6 +18,7 @@ echo "== 2. run the translation experiment (3 s of session, 1 kHz lockstep, CPU 
 $BIN/hrt run examples/experiments/translation.toml --backend cpu
 
 echo "== 3. figures from the trace"
+mkdir -p "$OUT/figures"
 $BIN/hbake plot "$OUT/translation.trace.csv" -o "$OUT/figures" --figure fig7 --figure scene \
   --scene examples/experiments/translation.toml --frame 1800 --hrt "$BIN/hrt"
 

@@ -359,8 +359,10 @@ def plot_trace(trace: Path, figures=DEFAULT_FIGURES, out: Path | None = None, sc
     trace = Path(trace)
     tr = Trace(trace)
     out = Path(out) if out is not None else trace.parent
-    if not out.is_dir():
-        raise OutputUnwritableError(f"{out}: no such directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputUnwritableError(f"{out}: cannot create the folder: {exc.strerror}") from None
     if "scene" in figures and scene is None:
         raise HbakeError(f"{trace}: --figure scene needs --scene SCENE.toml (the objects and their bundles)", 2)
     stem = trace.stem
@@ -396,7 +398,7 @@ def _vec3(ctx, param, value):
               help="Figure to make (repeatable) [default: fig7, fig8, fig9; 'all' adds the scene "
                    "picture, which needs --scene].")
 @click.option("-o", "--out", type=click.Path(path_type=Path, file_okay=False),
-              help="Folder of the PNGs [default: the trace's folder]; each is named "
+              help="Folder of the PNGs, made if missing [default: the trace's folder]; each is named "
                    "<trace stem>.<figure>.png.")
 @click.option("--scene", type=click.Path(path_type=Path, readable=False),
               help="The scene file the trace was run from (for the scene picture).")
