@@ -17,7 +17,7 @@ EXIT_OUTPUT_UNWRITABLE = 6  # output directory missing or not writable
 EXIT_BAKE_FAILED = 7      # a stage could not produce a valid result (e.g. parameterization failed)
 EXIT_CONFIG = 8           # bad --config file or setting value
 EXIT_TEXTURE_PARAMETERS = 20  # hbake texture: a parameter it cannot honour (amplitude, wavelength, region)
-EXIT_TARGET_UNREACHABLE = 9  # --method preserve: the coarse mesh cannot reach the target with chart borders locked
+EXIT_TARGET_UNREACHABLE = 9  # --method preserve: the coarse mesh cannot reach the target with its chart borders kept
 EXIT_INTERRUPTED = 130    # Ctrl-C / SIGINT / SIGTERM (128 + SIGINT, the shell convention)
 
 # Exit codes of `hbake validate`, one per error class of docs/bundle-format.md.

@@ -248,7 +248,11 @@ def simplify_preserving(positions, split_faces, uv_split, target: int, *, lock: 
     into the split vertices, meshoptimizer's relative error)."""
     import ctypes
 
-    from meshoptimizer._loader import lib
+    try:
+        from meshoptimizer._loader import lib
+    except ImportError:
+        raise BakeFailedError("--method preserve needs meshoptimizer (pip install "
+                              "meshoptimizer==0.2.30a0, as pyproject.toml pins it)") from None
 
     # The wrapper (meshoptimizer 0.2.30a0) declares no argument types for this entry, so
     # ctypes cannot pass the float and would pass the size_t counts as C ints; they are
