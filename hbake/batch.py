@@ -38,6 +38,7 @@ from typing import Any, Callable
 
 from hbake import __version__
 from hbake.constants import SUPPORTED_EXTENSIONS
+from hbake.fileio import write_json_atomic
 from hbake.errors import (EXIT_BAKE_FAILED, EXIT_CONFIG, EXIT_INPUT_INVALID, EXIT_INPUT_MISSING,
                           EXIT_INTERRUPTED, EXIT_OUTPUT_EXISTS, EXIT_OUTPUT_UNWRITABLE,
                           EXIT_USAGE, ConfigError, HbakeError, InputMissingError)
@@ -518,13 +519,4 @@ def run_batch(jobs: list[Job], executor, *, log: Callable[[str], None] = lambda 
 
 def write_report(path: Path, report: dict) -> None:
     """The JSON report, written to a temporary sibling and renamed (never half-written)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_text(json.dumps(report, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise HbakeError(f"{path}: cannot write the report: {exc.strerror}",
-                         EXIT_OUTPUT_UNWRITABLE) from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    write_json_atomic(path, report, "cannot write the report")

@@ -10,8 +10,10 @@ only a regular file of at most ``limit`` bytes. Failures are ``OSError``s whose
 from __future__ import annotations
 
 import errno
+import json
 import os
 import stat
+from pathlib import Path
 
 __all__ = ["NotRegularFileError", "FileTooLargeError", "read_regular", "check_regular",
            "file_kind"]
@@ -77,3 +79,21 @@ def read_regular(path: str | os.PathLike, limit: int | None = None) -> bytes:
         e.limit = limit
         raise e
     return data
+
+
+def write_json_atomic(path: Path | str, data: dict, what: str) -> None:
+    """``data`` as sorted, indented JSON at ``path``, through a temporary sibling renamed
+    into place, so that a reader never sees half a file. An OSError becomes one line
+    naming ``what`` and the path (exit 6, the output-unwritable class)."""
+    from hbake.errors import OutputUnwritableError
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise OutputUnwritableError(f"{what} {path}: {exc.strerror or exc}") from None
+    finally:
+        if tmp.exists():
+            tmp.unlink()
