@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import sys
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import click
 
 from hbake import __version__
 from hbake.errors import (EXIT_INTERRUPTED, ConfigError, HbakeError, OutputUnwritableError)
+from hbake.fileio import write_json_atomic
 
 #: Exit code of an unexpected exception (a bug): distinct from every error class.
 EXIT_INTERNAL = 1
@@ -96,12 +96,12 @@ def bake_command(input, output, config, sets, method, units, target_faces, atlas
     Exit codes: 0 ok, 1 internal error, 2 bad option, 3 input missing, 4 input invalid,
     5 output exists, 6 output not writable, 7 bake failed, 8 bad config, 130 interrupted.
     """
-    # SIGINT and SIGTERM both end the bake cleanly. SIGINT is set explicitly because a
-    # shell starts background jobs with it ignored. The bake itself runs in a forked
+    # SIGINT and SIGTERM both end the bake cleanly. The bake itself runs in a forked
     # child (hbake.guard): this process stays able to react while a native library
     # holds the GIL, kills the child on a signal and removes its temporary bundle.
-    previous = {sig: signal.signal(sig, _raise_interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    from hbake.guard import interrupts_end_the_command
+
+    with interrupts_end_the_command():
         try:
             settings = build_settings(config, sets, method=method, units=units,
                                       target_faces=target_faces, atlas_size=atlas_size,
@@ -117,12 +117,6 @@ def bake_command(input, output, config, sets, method, units, target_faces, atlas
 
         code = run_guarded(lambda: _bake_here(input, output, settings, report, force, quiet,
                                               as_json), output, report)
-    except KeyboardInterrupt:
-        click.echo("hbake: interrupted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     sys.exit(code)
 
 
@@ -174,10 +168,6 @@ def _echo_json_error(code: int, message: str) -> None:
                                                   "message": message}}, sort_keys=True))
 
 
-def _raise_interrupt(signum, frame):
-    raise KeyboardInterrupt
-
-
 def build_settings(config=None, sets=(), **named):
     """Defaults < --config < --set < named options; returns a BakeSettings."""
     from hbake.settings import BakeSettings, parse_value
@@ -210,15 +200,7 @@ def _check_report_path(path: Path) -> None:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise OutputUnwritableError(f"--report {path}: {exc.strerror}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    write_json_atomic(path, data, "--report")
 
 
 def _len(x: float) -> str:

@@ -9,14 +9,13 @@ from __future__ import annotations
 import json
 import os
 import re
-import signal
 import sys
 import time
 from pathlib import Path
 
 import click
 
-from hbake.errors import EXIT_INTERRUPTED, EXIT_OUTPUT_UNWRITABLE, HbakeError
+from hbake.errors import EXIT_INPUT_MISSING, EXIT_INTERRUPTED, EXIT_OUTPUT_UNWRITABLE, HbakeError
 
 CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
 
@@ -33,10 +32,6 @@ def _parse_size(ctx, param, value):
     if n < 1:
         raise click.BadParameter(f"{value!r}: must be positive")
     return int(n)
-
-
-def _raise_interrupt(signum, frame):
-    raise KeyboardInterrupt
 
 
 def _fail(exc: HbakeError, as_json: bool) -> None:
@@ -97,8 +92,9 @@ def batch_command(inputs, out_dir, jobs, config, memory_budget, executor, schedu
         if not quiet:
             click.echo(msg, err=True)
 
-    previous = {sig: signal.signal(sig, _raise_interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    from hbake.guard import interrupts_end_the_command
+
+    with interrupts_end_the_command():
         try:
             cfg = load_batch_config(config)
             try:
@@ -113,7 +109,7 @@ def batch_command(inputs, out_dir, jobs, config, memory_budget, executor, schedu
             todo = plan(list(inputs), out_dir, cfg, rebuild=rebuild)
             if not todo:
                 raise HbakeError(f"{', '.join(map(str, inputs))}: no mesh files "
-                                 f"(.obj .ply .stl .off .gltf .glb)", 3)
+                                 f"(.obj .ply .stl .off .gltf .glb)", EXIT_INPUT_MISSING)
         except HbakeError as exc:
             _fail(exc, as_json)
         n = jobs or os.cpu_count() or 1
@@ -141,12 +137,6 @@ def batch_command(inputs, out_dir, jobs, config, memory_budget, executor, schedu
         if as_json:
             click.echo(json.dumps(report, indent=2, sort_keys=True))
         sys.exit(report["exit_code"])
-    except KeyboardInterrupt:
-        click.echo("hbake: interrupted", err=True)
-        sys.exit(EXIT_INTERRUPTED)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def print_batch_summary(report: dict, report_path: Path, err: bool = False) -> None:

@@ -195,3 +195,25 @@ def run_guarded(body: Callable[[], int], output: Path, report: Path | None = Non
               file=sys.stderr, flush=True)
         return EXIT_INTERNAL
     return code
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def interrupts_end_the_command():
+    """SIGINT and SIGTERM raise KeyboardInterrupt inside the block (SIGINT set explicitly:
+    a shell starts background jobs with it ignored); one that arrives ends the command
+    with "hbake: interrupted" and exit 130. The previous handlers come back after."""
+    from hbake.errors import EXIT_INTERRUPTED
+
+    previous = {sig: signal.signal(sig, _raise_interrupt) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    except KeyboardInterrupt:
+        print("hbake: interrupted", file=sys.stderr, flush=True)
+        sys.exit(EXIT_INTERRUPTED)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
