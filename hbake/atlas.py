@@ -147,12 +147,7 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
     jumps = repair_jumps(points, prim, alt, alt_prim, use_neg, ys, xs, chart, W, H, texel_size,
                          full_vertices, full_faces)
 
-    image = np.zeros((H, W, 4), dtype=np.float32)
-    image[ys, xs, :3] = points.astype(np.float32)
-    image[..., 3] = covered.astype(np.float32)
-    triangle = np.full((H, W), -1, dtype=np.int64)
-    triangle[ys, xs] = t_ids
-
+    image, triangle = texel_image(points, ys, xs, t_ids, covered)
     gutter = fill_gutter(image, covered, baked, dist, atlas.gutter)
 
     # Displacement bounds: signed distance (outward positive) of every baked point that a
@@ -169,6 +164,19 @@ def bake_atlas(coarse_vertices: np.ndarray, coarse_faces: np.ndarray, uvs: np.nd
                       displacement_outward=outward, displacement_inward=inward,
                       rays=int(len(t_ids)), fallbacks=int((~hit & inside).sum()),
                       border_fallbacks=int((~hit & ~inside).sum()), jumps=jumps)
+
+
+def texel_image(points: np.ndarray, ys: np.ndarray, xs: np.ndarray, t_ids: np.ndarray,
+                covered: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The atlas image (RGB the points of the covered texels (ys, xs), A the coverage) and
+    the per-texel coarse triangle (-1 where uncovered), as both routes store them."""
+    H, W = covered.shape
+    image = np.zeros((H, W, 4), dtype=np.float32)
+    image[ys, xs, :3] = points.astype(np.float32)
+    image[..., 3] = covered.astype(np.float32)
+    triangle = np.full((H, W), -1, dtype=np.int64)
+    triangle[ys, xs] = t_ids
+    return image, triangle
 
 
 def fill_gutter(image: np.ndarray, covered: np.ndarray, baked: np.ndarray, dist: np.ndarray,

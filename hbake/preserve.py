@@ -51,7 +51,7 @@ import numpy as np
 
 from hbake import constants as C
 from hbake.atlas import (BakedAtlas, RayCaster, assign_texels, fill_gutter, midpoint_offsets,
-                         texel_edges)
+                         texel_edges, texel_image)
 from hbake.errors import BakeFailedError, TargetUnreachableError
 from hbake.geometry import (ClosestPointQuery, closest_point_on_triangles, face_areas,
                             is_closed, signed_distances)
@@ -401,11 +401,7 @@ def rasterize_full(coarse_vertices, coarse_faces, coarse_uvs, coarse_chart, full
     if progress:
         progress(0.9)
 
-    image = np.zeros((H, W, 4), dtype=np.float32)
-    image[ys, xs, :3] = points.astype(np.float32)
-    image[..., 3] = covered.astype(np.float32)
-    triangle = np.full((H, W), -1, dtype=np.int64)
-    triangle[ys, xs] = t_ids
+    image, triangle = texel_image(points, ys, xs, t_ids, covered)
     gutter = fill_gutter(image, covered, baked, dist, atlas_settings.gutter)
 
     # Discontinuities and off-surface chords between neighbours, counted as the cage
