@@ -136,10 +136,29 @@ int run(const RunFlags& f) {
   } catch (const hrt::SceneFileError& e) {
     throw Exit(kScene, std::string("error: ") + e.what());
   }
-  if (f.duration >= 0) cfg.duration = f.duration;
-  if (f.lockstep) cfg.lockstep = true;
-  if (f.realtime) cfg.lockstep = false;
-  if (f.sched_fifo) cfg.loop.realtime = true;
+  // The flags, checked as the file's keys are (and what they imply with the
+  // file's other keys: a --duration sizes the device log).
+  hrt::RunOverrides overrides;
+  if (f.duration >= 0) overrides.duration = f.duration;
+  if (f.lockstep) overrides.lockstep = true;
+  if (f.realtime) overrides.lockstep = false;
+  overrides.sched_fifo = f.sched_fifo;
+  overrides.trace = f.trace;
+  overrides.device_log = f.device_log;
+  try {
+    hrt::apply_overrides(cfg, overrides);
+  } catch (const hrt::SceneFileError& e) {
+    // A flag's value is a usage error; a limit the file's own keys break is the scene's.
+    throw Exit(e.key.rfind("--", 0) == 0 ? kUsage : kScene, std::string("error: ") + e.what());
+  }
+  // No output may be an input (the scene, a trajectory, the plugin, a
+  // bundle's file), whichever way its path came in; checked before anything
+  // is opened or written.
+  try {
+    hrt::check_run_outputs(cfg);
+  } catch (const hrt::OutputOverwritesInput& e) {
+    throw Exit(kOutput, std::string("error: ") + e.what());
+  }
   if (cfg.lockstep && cfg.device.type != "scripted")
     throw Exit(kUsage, "--lockstep needs a scripted device (" + cfg.file + " has device.type = \"" +
                            cfg.device.type + "\"); see hrt run --help");
@@ -159,13 +178,6 @@ int run(const RunFlags& f) {
   hrt::BackendChoice backend_choice = hrt::BackendChoice::cpu;
   if (!hrt::parse_backend_choice(cfg.backend, backend_choice))  // both readers checked it already
     throw Exit(kUsage, backend_source + ": not a backend (cpu, gl, auto)");
-  // Paths given on the command line are relative to the working directory.
-  if (!f.trace.empty()) cfg.trace.path = f.trace;
-  if (!f.device_log.empty()) cfg.trace.device_log = f.device_log;
-  // A device log the scene did not size (given here, or a longer --duration).
-  if (!cfg.trace.device_log.empty())
-    cfg.loop.log_capacity = std::max(cfg.loop.log_capacity,
-                                     static_cast<size_t>(std::ceil((cfg.duration + cfg.loop.watchdog_ramp) / cfg.loop.period)) + 2);
 
   // Bundles, the scene, trajectories of kinematic objects.
   std::vector<hrt::Model> models;
@@ -210,6 +222,11 @@ int run(const RunFlags& f) {
     ~Closer() { if (d) d->close(); }
   } closer{raw.get()};
   const hrt::DeviceInfo info = effective_info(cfg, *raw);
+  try {
+    hrt::check_device_limits(info, cfg.device.type == "plugin" ? "plugin " + cfg.device.plugin : cfg.file);
+  } catch (const hrt::DeviceError& e) {
+    throw Exit(kDevice, std::string("error: ") + e.what());
+  }
   LimitedDevice device(*raw, info);
 
   std::vector<hrt::Pose> initial;
@@ -244,7 +261,8 @@ int run(const RunFlags& f) {
   SessionClock wall;
   const hrt::Clock& clock = cfg.lockstep ? static_cast<const hrt::Clock&>(manual) : wall;
   const size_t ticks_total = static_cast<size_t>(std::llround(cfg.duration / cfg.loop.period));
-  hrt::DeviceLoop loop(device, cfg.loop, clock, cfg.lockstep ? 0 : ticks_total + 1024);
+  // Period errors for the jitter summary: one per tick, at most kMaxJitterSamples.
+  hrt::DeviceLoop loop(device, cfg.loop, clock, cfg.lockstep ? 0 : std::min(ticks_total + 1024, hrt::kMaxJitterSamples));
 
   std::vector<double> sim_periods;
   sim_periods.reserve(cfg.lockstep ? 1 : 1 << 20);
@@ -297,9 +315,16 @@ int run(const RunFlags& f) {
     return nullptr;
   };
 
+  // A device that failed for good (a plugin call past its deadline) ends
+  // the session as Ctrl-C does, then with exit 5 and its one line.
+  std::string device_fault;
+  auto faulted = [&]() {
+    if (device_fault.empty()) device_fault = raw->fault();
+    return !device_fault.empty();
+  };
   const int every = std::max(1, cfg.sim_every);
   if (cfg.lockstep) {
-    for (size_t i = 0; i <= ticks_total && !g_stop.load(); ++i) {
+    for (size_t i = 0; i <= ticks_total && !g_stop.load() && !faulted(); ++i) {
       const double t = static_cast<double>(i) * cfg.loop.period;
       manual.set(t);
       loop.tick();
@@ -313,7 +338,7 @@ int run(const RunFlags& f) {
   } else {
     loop.start();
     double t_prev = -1;
-    while (!g_stop.load()) {
+    while (!g_stop.load() && !faulted()) {
       const double t = clock.now();
       if (t >= cfg.duration) break;
       if (!loop.target(tgt)) {
@@ -335,6 +360,7 @@ int run(const RunFlags& f) {
   }
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
   const bool interrupted = g_stop.load();
+  if (device_fault.empty()) device_fault = raw->fault();
   std::signal(SIGINT, SIG_DFL);
   std::signal(SIGTERM, SIG_DFL);
   // No trace of a session that did not run its scene (the writer's
@@ -356,6 +382,14 @@ int run(const RunFlags& f) {
       throw Exit(kOutput, std::string("error: ") + e.what());
     }
   }
+  // The trace is written (what the session did up to the fault); a signal
+  // that came first is the reason the session ended.
+  if (!device_fault.empty() && !interrupted) throw Exit(kDevice, "error: " + device_fault);
+  if (trace.truncated())
+    std::fprintf(stderr, "hrt: warning: %s: the trace stopped at %llu rows, %llu bytes: [trace] max_bytes (%llu); "
+                 "the session ran on\n",
+                 cfg.trace.path.c_str(), static_cast<unsigned long long>(trace.rows()),
+                 static_cast<unsigned long long>(trace.bytes()), static_cast<unsigned long long>(cfg.trace.max_bytes));
 
   // Summary.
   const hrt::DeviceLoopStats& st = loop.stats();
@@ -367,8 +401,13 @@ int run(const RunFlags& f) {
   j["duration_s"] = cfg.lockstep ? static_cast<double>(ticks_total) * cfg.loop.period : wall_s;
   j["wall_s"] = wall_s;
   j["frames"] = frames;
+  // Achieved rates: what ran per second of wall time (real time), next to
+  // the nominal ones; in lockstep the session time is the clock.
+  const double achieved_tick_hz =
+      cfg.lockstep ? 1.0 / cfg.loop.period : (wall_s > 0 ? static_cast<double>(loop.stats().ticks) / wall_s : 0.0);
   j["simulation"] = {
       {"rate_hz", cfg.lockstep ? 1.0 / (every * cfg.loop.period) : (wall_s > 0 ? frames / wall_s : 0.0)},
+      {"achieved_rate_hz", cfg.lockstep ? 1.0 / (every * cfg.loop.period) : (wall_s > 0 ? frames / wall_s : 0.0)},
       {"compute_rate_hz", frame_us_sum > 0 ? 1e6 * frames / frame_us_sum : 0.0},
       {"frame_us_median", median(frame_us)},
       {"frame_us_p99", percentile(frame_us, 0.99)},
@@ -378,6 +417,9 @@ int run(const RunFlags& f) {
       {"fading_patch_frames", fading}};
   nlohmann::json dl = {{"ticks", st.ticks},
                        {"period_s", cfg.loop.period},
+                       {"nominal_rate_hz", 1.0 / cfg.loop.period},
+                       {"achieved_rate_hz", achieved_tick_hz},
+                       {"missed_deadlines", st.missed_deadlines},
                        {"force_clamps", st.force_clamps},
                        {"torque_clamps", st.torque_clamps},
                        {"rate_limited", st.rate_limited},
@@ -422,6 +464,8 @@ int run(const RunFlags& f) {
   }
   j["backend"] = jb;
   j["trace"] = cfg.trace.path;
+  j["trace_rows"] = trace.rows();
+  j["trace_truncated"] = trace.truncated();
   j["interrupted"] = interrupted;
   if (!first_non_finite(j).empty()) throw Exit(kInternal, "internal error: non-finite value in the summary");
 
@@ -431,11 +475,16 @@ int run(const RunFlags& f) {
     std::printf("hrt run %s: %s, %llu frames in %.3f s of session time (%s, %.3f s wall)\n", cfg.file.c_str(),
                 cfg.lockstep ? "lockstep" : "real time", static_cast<unsigned long long>(frames),
                 j["duration_s"].get<double>(), info.name.c_str(), wall_s);
-    std::printf("  simulation: %.0f Hz; frame compute median %.1f us, p99 %.1f us (%.0f Hz if alone); up to %llu patches\n",
-                j["simulation"]["rate_hz"].get<double>(), median(frame_us), percentile(frame_us, 0.99),
+    std::printf("  simulation: %.0f Hz%s; frame compute median %.1f us, p99 %.1f us (%.0f Hz if alone); up to %llu patches\n",
+                j["simulation"]["rate_hz"].get<double>(), cfg.lockstep ? "" : " achieved", median(frame_us), percentile(frame_us, 0.99),
                 j["simulation"]["compute_rate_hz"].get<double>(), static_cast<unsigned long long>(max_patches));
-    std::printf("  device loop: %llu ticks at %.0f Hz, multirate %s", static_cast<unsigned long long>(st.ticks),
-                1.0 / cfg.loop.period, cfg.loop.multirate ? "on" : "off");
+    if (cfg.lockstep)
+      std::printf("  device loop: %llu ticks at %.0f Hz (lockstep), multirate %s",
+                  static_cast<unsigned long long>(st.ticks), 1.0 / cfg.loop.period, cfg.loop.multirate ? "on" : "off");
+    else
+      std::printf("  device loop: %llu ticks in %.3f s: %.0f Hz achieved of %.0f Hz, %llu missed deadlines, multirate %s",
+                  static_cast<unsigned long long>(st.ticks), wall_s, achieved_tick_hz, 1.0 / cfg.loop.period,
+                  static_cast<unsigned long long>(st.missed_deadlines), cfg.loop.multirate ? "on" : "off");
     if (!cfg.lockstep)
       std::printf("; period error p50 %.1f us, p99 %.1f us, max %.1f us (SCHED_FIFO %s)",
                   dl["jitter_us"]["p50"].get<double>(), dl["jitter_us"]["p99"].get<double>(),

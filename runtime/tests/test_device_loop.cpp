@@ -750,3 +750,104 @@ TEST(DeviceLoop, JitterSummaryPercentiles) {
   EXPECT_NEAR(j.p99, 4.96e-6, 1e-18);  // 4e-6 + 0.96 (5e-6 - 4e-6), to rounding (1 ulp ~ 1e-21)
   EXPECT_DOUBLE_EQ(j.max, 5e-6);
 }
+
+// ---------------------------------------------------------------------------
+// The output bound: |F| <= envelope x max_force, |T| <= envelope x max_torque
+// at every tick, whatever the command, and never above by rounding
+// ---------------------------------------------------------------------------
+
+namespace {
+
+// The largest of the norms a reader may compute: the plain sum of squares in
+// two orders, hypot, and Eigen's stable norm.
+double worst_norm(const Vec3& v) {
+  const double a = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  const double b = std::sqrt(v[2] * v[2] + v[1] * v[1] + v[0] * v[0]);
+  const double c = std::hypot(v[0], std::hypot(v[1], v[2]));
+  return std::max({a, b, c, v.norm(), v.stableNorm()});
+}
+
+}  // namespace
+
+// A command 25 times the force limit and 20 times the torque limit, turning
+// every tick: during the soft start (0.5 s) the output is at most s(t) x the
+// limit, s(t) = (t - t0) / 0.5 from the first command at t0 = 20 ms, and it
+// rides that bound (the rate limit, 1 N per tick, is above the ramp's slope
+// of 8 mN per tick). The same after a watchdog stall and its recovery (the
+// ramp restarts from the level it left), and down the watchdog ramp, where
+// the rate limit would let the output fall slower than the bound.
+TEST(DeviceLoop, OutputNeverExceedsTheEnvelopeTimesTheLimit) {
+  DeviceLoopOptions o;
+  o.soft_start = 0.5;
+  o.watchdog = 0.05;
+  o.watchdog_ramp = 0.01;
+  o.multirate = false;
+  DeviceInfo info;
+  info.max_force = 4.0;
+  info.max_torque = 0.05;
+  Rig rig(o, info);
+  double worst_f = -1, worst_t = -1;  // largest |F| - bound, |T| - bound
+  double level_at_stall = 0;
+  for (long i = 0; i <= 2000; ++i) {
+    const double a = 0.01 * static_cast<double>(i);  // turning slowly enough for the rate limit
+    const bool publishing = i >= 20 && (i < 900 || i >= 1100);
+    if (publishing)
+      rig.loop->publish(command(vec6(100 * std::cos(a), 100 * std::sin(a), -30, std::sin(a), 0.2, std::cos(a))));
+    const Vec6 out = rig.tick(i);
+    const double t = static_cast<double>(i) * 1e-3;
+    double envelope;
+    if (i < 20) {
+      envelope = 0;
+    } else if (i < 900 + 50) {  // soft start from 20 ms, then held until the watchdog fires
+      envelope = std::clamp((t - 0.02) / 0.5, 0.0, 1.0);
+    } else if (i < 1100) {  // last command at 899 ms: stalled at 949 ms, ramped out by 959 ms
+      envelope = std::clamp(1.0 - (t - 0.899 - 0.05) / 0.01, 0.0, 1.0);
+      if (i == 1099) level_at_stall = envelope;
+    } else {  // recovery at 1.1 s from the level it had (zero): a soft start again
+      envelope = std::clamp((t - 1.1) / 0.5 + level_at_stall, 0.0, 1.0);
+    }
+    worst_f = std::max(worst_f, worst_norm(out.head<3>()) - envelope * 4.0 * (1 + 1e-12));
+    worst_t = std::max(worst_t, worst_norm(out.tail<3>()) - envelope * 0.05 * (1 + 1e-12));
+    EXPECT_LE(worst_norm(out.head<3>()), envelope * 4.0 * (1 + 1e-12)) << "i = " << i;
+    EXPECT_LE(worst_norm(out.tail<3>()), envelope * 0.05 * (1 + 1e-12)) << "i = " << i;
+    // Not vacuous: the output rides the bound once the rate limit has caught up.
+    if (i >= 40 && i < 900) EXPECT_GT(out.head<3>().norm(), envelope * 4.0 * 0.999) << "i = " << i;
+  }
+  EXPECT_GE(rig.loop->stats().watchdog_events, 1u);
+  // The ramps are evaluated from session times i * 1e-3, whose differences
+  // carry ~1e-16 s of rounding: 1e-12 of the limit covers them.
+  EXPECT_LE(worst_f, 0.0);
+  EXPECT_LE(worst_t, 0.0);
+}
+
+// 20,000 commands far above a 5 N limit, in directions spread over the
+// sphere and with magnitudes from 5 N to 1e6 N: every written force's norm,
+// computed in every way a reader might, is <= 5 exactly (no 1-ulp overshoot).
+TEST(DeviceLoop, TheClampNeverExceedsTheLimitByRounding) {
+  DeviceLoopOptions o = plain();
+  DeviceInfo info;
+  info.max_force = 5.0;
+  info.max_torque = 0.3;
+  Rig rig(o, info);
+  uint64_t state = 12345;
+  auto uniform = [&state]() {  // xorshift64*: reproducible, no <random> distribution differences
+    state ^= state >> 12, state ^= state << 25, state ^= state >> 27;
+    return static_cast<double>((state * 2685821657736338717ull) >> 11) * 0x1.0p-53;
+  };
+  double worst_f = 0, worst_t = 0;
+  long clamped = 0;
+  for (long i = 0; i < 20000; ++i) {
+    const double z = 2 * uniform() - 1, phi = 2 * kPi * uniform(), r = std::sqrt(1 - z * z);
+    const double mag = 5.0 * std::pow(2e5, uniform());
+    const Vec3 d(r * std::cos(phi), r * std::sin(phi), z);
+    rig.loop->publish(command(vec6(mag * d[0], mag * d[1], mag * d[2], 0.3 * mag * d[1], 0.3 * mag * d[2],
+                                   0.3 * mag * d[0])));
+    const Vec6 out = rig.tick(i);
+    worst_f = std::max(worst_f, worst_norm(out.head<3>()));
+    worst_t = std::max(worst_t, worst_norm(out.tail<3>()));
+    clamped += out.head<3>().norm() > 4.999 ? 1 : 0;
+  }
+  EXPECT_LE(worst_f, 5.0);
+  EXPECT_LE(worst_t, 0.3);
+  EXPECT_GT(clamped, 19000);
+}

@@ -1,6 +1,7 @@
 // Scene files of `hrt run` (docs/scene-format.md) and the trace writer
 // (docs/trace-format.md).
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cmath>
@@ -425,13 +426,13 @@ TEST_F(RunConfig, NonFiniteValuesAreErrors) {
 }
 
 TEST_F(RunConfig, OutOfRangeValuesAreErrors) {
-  expect_error(minimal("[force]\nstiffness = -5\n"), "force.stiffness", "must be > 0, got -5");
-  expect_error(minimal("[force]\nstiffness = 0\n"), "force.stiffness", "must be > 0");
-  expect_error(minimal("[force]\nresolution = 4\n"), "force.resolution", "between 8 and 4096");
-  expect_error(minimal("[force]\nlin_step = -1e-3\n"), "force.lin_step", "must be >= 0");
+  expect_error(minimal("[force]\nstiffness = -5\n"), "force.stiffness", "must be between 1 and 1e+07 N/m, got -5");
+  expect_error(minimal("[force]\nstiffness = 0\n"), "force.stiffness", "must be between");
+  expect_error(minimal("[force]\nresolution = 4\n"), "force.resolution", "between 8 and 1024");
+  expect_error(minimal("[force]\nlin_step = -1e-3\n"), "force.lin_step", "must be between 0 and 0.1 m");
   expect_error(minimal("[force]\nauto_resolution = true\nresolution = 64\nmax_resolution = 32\n"),
                "force.max_resolution", "at least the resolution");
-  expect_error(minimal("[run]\nduration = 0\n"), "run.duration", "must be > 0");
+  expect_error(minimal("[run]\nduration = 0\n"), "run.duration", "must be between 0.001 and 86400 s");
   expect_error(minimal("[run]\nsim_every = 0\n"), "run.sim_every", "between 1 and");
   expect_error(minimal("[run]\nbackend = \"vulkan\"\n"), "run.backend", "must be one of \"cpu\", \"gl\", \"auto\"");
   expect_error(minimal("[run]\nbackend = \"gl\"\ngl_search = \"fast\"\n"), "run.gl_search",
@@ -441,18 +442,18 @@ TEST_F(RunConfig, OutOfRangeValuesAreErrors) {
   expect_error(minimal("[run]\nbackend = \"gl\"\ngl_search = \"occlusion\"\nocclusion_steps = 0\n"),
                "run.occlusion_steps", "between 1 and 23");
   expect_error(minimal("[force]\nheights = \"fine\"\n"), "force.heights", "\"surface\", \"coarse\"");
-  expect_error(minimal("[probe]\ndensity = 0\n"), "probe.density", "must be > 0");
-  expect_error(minimal("[workspace]\nscale = -2\n"), "workspace.scale", "must be > 0");
-  expect_error(minimal("[loop]\nperiod = 0\n"), "loop.period", "must be > 0");
-  expect_error(minimal("[loop]\nperiod = 0.5\n"), "loop.period", "at most 0.1 s");
+  expect_error(minimal("[probe]\ndensity = 0\n"), "probe.density", "must be between 1 and 100000 kg/m^3");
+  expect_error(minimal("[workspace]\nscale = -2\n"), "workspace.scale", "must be between 0.001 and 1000");
+  expect_error(minimal("[loop]\nperiod = 0\n"), "loop.period", "must be between 0.0001 and 0.1 s");
+  expect_error(minimal("[loop]\nperiod = 0.5\n"), "loop.period", "must be between 0.0001 and 0.1 s");
   expect_error(minimal("[loop]\npriority = 100\n"), "loop.priority", "between 1 and 99");
   expect_error(minimal("[loop]\nlog_capacity = -1\n"), "loop.log_capacity", "between 0 and");
   expect_error(minimal("[friction]\nmu_static = 0.5\nmu_dynamic = 0.6\n"), "friction.mu_dynamic",
                "must not exceed mu_static");
-  expect_error(minimal("[friction]\nmu_static = -0.1\n"), "friction.mu_static", "must be >= 0");
+  expect_error(minimal("[friction]\nmu_static = -0.1\n"), "friction.mu_static", "must be between 0 and 10");
   expect_error(minimal("[friction]\nenabled = true\n"), "friction.enabled", "no mu_static > 0");
   expect_error(kObjects + "[device]\ntrajectory = \"slide.csv\"\nmax_force = 0\n", "device.max_force",
-               "must be > 0");
+               "must be between 0.001 and 1000 N");
   expect_error(kObjects + "[device]\ntrajectory = \"slide.csv\"\ndof_actuated = 5\n", "device.dof_actuated",
                "must be 3 or 6");
   expect_error(kObjects + "[device]\ntype = \"udp\"\nport = 70000\n", "device.port", "between 0 and 65535");
@@ -503,7 +504,7 @@ TEST_F(RunConfig, MaterialErrors) {
   expect_error(named + "[[material]]\nstiffness = 10\n", "material[0].object", "missing");
   expect_error(named + "[[material]]\nobject = \"plate\"\n[[material]]\nobject = \"plate\"\n", "material[1].object",
                "already has material[0]");
-  expect_error(named + "[[material]]\nobject = \"plate\"\nstiffness = 0\n", "material[0].stiffness", "must be > 0");
+  expect_error(named + "[[material]]\nobject = \"plate\"\nstiffness = 0\n", "material[0].stiffness", "must be between 1 and");
   // The pair's mu_static below the inherited mu_dynamic names the key it set.
   expect_error(named + "[friction]\nmu_static = 0.5\nmu_dynamic = 0.4\n[[material]]\nobject = \"plate\"\nmu_static = 0.3\n",
                "material[0].mu_static", "must not exceed mu_static (0.3)");
@@ -527,9 +528,6 @@ TEST_F(RunConfig, DeviceAndRunConsistencyErrors) {
                "needs a reply_port");
   expect_error(minimal("[coupling]\nk_lin = 100\nb_lin = 1\nk_ang = 1\n"), "coupling.b_ang",
                "give all four gains");
-  expect_error(minimal("[trace]\npath = \"slide.csv\"\n"), "trace.path", "the run would overwrite its input");
-  expect_error(minimal("[trace]\npath = \"out/a.csv\"\ndevice_log = \"out/a.csv\"\n"), "trace.device_log",
-               "same file as path");
   expect_error(minimal("[trace]\npath = \"nofolder/a.csv\"\n"), "trace.path", "does not exist");
   expect_error(minimal("[trace]\npath = \"\"\n"), "trace.path", "empty path");
   expect_error(minimal("[trace]\ndevice_log = \"out/d.csv\"\n[loop]\nlog_capacity = 0\n"), "loop.log_capacity",
@@ -868,3 +866,120 @@ TEST_F(Trace, IoErrorsNameThePath) {
 }
 
 }  // namespace
+
+// Ranges grounded in devices and physics (docs/scene-format.md, "Ranges"):
+// the absurd values a fuzzer or a unit slip produces are refused by key.
+TEST_F(RunConfig, MeaninglessValuesAreRefusedWithTheirRange) {
+  expect_error(kObjects + "[device]\ntrajectory = \"slide.csv\"\nmax_stiffness = 1e308\n", "device.max_stiffness",
+               "must be between 1 and 1e+06 N/m, got 1e+308 (1 mm must give at least 1 mN)");
+  expect_error(kObjects + "[device]\ntrajectory = \"slide.csv\"\nmax_stiffness = 0.5\n", "device.max_stiffness",
+               "between 1 and");
+  expect_error(minimal("[loop]\nperiod = 1e-9\n"), "loop.period", "between 0.0001 and 0.1 s");
+  expect_error(minimal("[loop]\nlog_capacity = 10000000\n"), "loop.log_capacity", "between 0 and 2000000");
+  expect_error(minimal("[run]\nduration = 3e5\n"), "run.duration", "between 0.001 and 86400 s");
+  expect_error(minimal("[trace]\nmax_bytes = 10\n"), "trace.max_bytes", "between 1e+06 and 1e+12 bytes");
+  expect_error(minimal("[probe]\ngravity = [0, 0, -1e4]\n"), "probe.gravity", "at most 1000 m/s^2");
+}
+
+// The device log is sized to the session, never more: a capacity of two
+// million for a 0.2 s session allocates 201 rows. A --duration checks the
+// same limit as the file's duration, naming the flag.
+TEST_F(RunConfig, OverridesAreCheckedAndTheLogIsSizedToTheSession) {
+  hrt::RunConfig c = hrt::load_run_config(
+      scene(minimal("[run]\nduration = 0.2\n[loop]\nlog_capacity = 2000000\n[trace]\ndevice_log = \"out/d.csv\"\n")));
+  EXPECT_EQ(c.loop.log_capacity, 211u);  // (0.2 + 0.01) / 1e-3 + 1
+  hrt::RunConfig d = hrt::load_run_config(scene(minimal("[trace]\ndevice_log = \"out/d.csv\"\n")));
+  hrt::RunOverrides o;
+  o.duration = 20000.0;
+  try {
+    hrt::apply_overrides(d, o);
+    ADD_FAILURE() << "--duration 20000 with a whole-session device log was accepted";
+  } catch (const hrt::SceneFileError& e) {
+    EXPECT_EQ(e.key, "--duration");
+    EXPECT_NE(std::string(e.what()).find("more than the limit of 2000000"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("log_capacity"), std::string::npos) << e.what();
+  }
+  o.duration = 1e6;
+  EXPECT_THROW(hrt::apply_overrides(d, o), hrt::SceneFileError);
+  o.duration = 2.0;
+  hrt::apply_overrides(d, o);
+  EXPECT_EQ(d.loop.log_capacity, 2011u);
+  // The real-time trace rate by default, every frame in lockstep.
+  EXPECT_EQ(d.trace.rate, hrt::kDefaultRealtimeTraceRate);
+  o.lockstep = true;
+  hrt::apply_overrides(d, o);
+  EXPECT_EQ(d.trace.rate, 0.0);
+}
+
+// No output may be an input: by path, by a symbolic or hard link, from the
+// file or a flag; the two outputs may not be one file.
+TEST_F(RunConfig, OutputsMayNotBeInputs) {
+  auto expect_refused = [&](const hrt::RunConfig& c, const std::string& fragment) {
+    try {
+      hrt::check_run_outputs(c);
+      ADD_FAILURE() << "accepted; wanted: " << fragment;
+    } catch (const hrt::OutputOverwritesInput& e) {
+      EXPECT_NE(std::string(e.what()).find(fragment), std::string::npos) << e.what();
+    }
+  };
+  const std::string path = scene(minimal("[trace]\npath = \"out/trace.csv\"\n"));
+  hrt::RunConfig c = hrt::load_run_config(path);
+  hrt::check_run_outputs(c);  // fine as it is
+  hrt::RunConfig t = c;
+  t.trace.path = file("slide.csv");
+  expect_refused(t, "is the device's trajectory");
+  t.trace.path = path;
+  expect_refused(t, "is the scene file");
+  t.trace.path = file("models/plate.hbundle");
+  expect_refused(t, "bundle of object");
+  fs::create_symlink(file("slide.csv"), file("link.csv"));
+  t.trace.path = file("link.csv");
+  expect_refused(t, "is the device's trajectory");
+  fs::create_hard_link(file("slide.csv"), file("hard.csv"));
+  t.trace.path = file("hard.csv");
+  expect_refused(t, "is the device's trajectory");
+  t = c;
+  t.trace.device_log = file("out/trace.csv");
+  expect_refused(t, "the trace");
+  t = c;
+  t.trace.device_log = file("out/../slide.csv");
+  t.trace.device_log_key = "--device-log";
+  expect_refused(t, "(--device-log): is the device's trajectory");
+}
+
+// Inputs that are not regular files are named, never read; a scene over its
+// size limit is refused before it is read; values in messages are cut and
+// escaped.
+TEST_F(RunConfig, NonRegularAndHugeInputsAndRawBytesInMessages) {
+  const fs::path fifo = dir_ / "fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  try {
+    hrt::load_run_config(fifo.string());
+    ADD_FAILURE() << "a FIFO scene was read";
+  } catch (const hrt::SceneFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("is a FIFO, not a regular file"), std::string::npos) << e.what();
+  }
+  expect_error(minimal("[[object]]\nbundle = \"models/cup.hbundle\"\ntrajectory = \"fifo\"\n"),
+               "object[2].trajectory", "is a FIFO");
+  try {
+    hrt::load_run_config("/dev/zero");
+    ADD_FAILURE() << "/dev/zero was read";
+  } catch (const hrt::SceneFileError& e) {
+    EXPECT_NE(std::string(e.what()).find("is a character device"), std::string::npos) << e.what();
+  }
+  expect_error(std::string(hrt::kMaxSceneFileBytes + 1, '#'), "", "more than the limit of 1048576 bytes");
+  const std::string big(100000, 'x');
+  const std::string nul = std::string("ab") + '\0' + "\x1b[31m";
+  for (const std::string& v : {big, nul}) {
+    const std::string path = scene(minimal("[run]\nbackend = \"" + (v == nul ? std::string("ab\\u0000\\u001b[31m") : v) + "\"\n"));
+    try {
+      hrt::load_run_config(path);
+      ADD_FAILURE();
+    } catch (const hrt::SceneFileError& e) {
+      const std::string what = e.what();
+      EXPECT_LT(what.size(), 800u) << what.size();
+      for (char ch : what) EXPECT_GE(static_cast<unsigned char>(ch), 0x20) << what;
+      if (v == nul) EXPECT_NE(what.find("ab\\x00\\x1b[31m"), std::string::npos) << what;
+    }
+  }
+}

@@ -49,6 +49,12 @@ namespace hrt {
 constexpr double kDefaultStiffness = 1000.0;
 // Default grid resolution N (the paper's 50 x 50 buffer, Sec. 6.1 and 6.4).
 constexpr int kDefaultResolution = 50;
+// Largest grid resolution N of a patch ([force] resolution and
+// max_resolution of a scene, hrt query --resolution; the Scene refuses
+// more). A patch's depth buffers take about 110 N^2 bytes (13 N x N grids
+// of doubles and the seeds): 115 MB at N = 1024, which keeps `hrt run` and
+// `hrt query` under 1 GiB with any accepted value.
+constexpr int kMaxResolution = 1024;
 
 // How a texel's height is found (docs/bundle-format.md, "Heights").
 enum class HeightMode : int {

@@ -69,6 +69,12 @@ class Device {
   // for devices that forward them to a visual display (UdpDevice). Default:
   // ignored. May be called concurrently with read()/write().
   virtual void publish_poses(double /*t*/, const Pose* /*poses*/, int /*count*/) noexcept {}
+  // A device that failed for good (a plugin call that ran past its
+  // deadline): one line saying which device and which call; "" while it
+  // works. Once it is non-empty, read() returns false and write() does
+  // nothing: the session must end (hrt run: exit 5). Any thread but the
+  // device thread; may allocate.
+  virtual std::string fault() const { return {}; }
 };
 
 // Plays a trajectory (hrt/trajectory.h) at session time; records nothing.

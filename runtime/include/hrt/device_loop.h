@@ -6,9 +6,9 @@
 // Data flow (no locks; TripleBuffer below):
 //   device thread:  Device::read -> clutch / WorkspaceMap -> DeviceTarget --> simulation
 //   simulation:     Session::step(target) -> DeviceCommand ------------------> device thread
-//   device thread:  command -> (multirate) W = W0 - K_eff d -> soft start x watchdog ramp
-//                   -> scene-to-device frame -> torque policy -> NaN guard -> clamp
-//                   -> rate limit -> Device::write
+//   device thread:  command -> (multirate) W = W0 - K_eff d -> scene-to-device frame
+//                   -> torque policy -> NaN guard -> clamp to the limits -> x envelope
+//                   -> rate limit -> clamp to envelope x limits -> Device::write
 //
 // Multirate (Otaduy and Lin 2006): W0 is the wrench the device should feel
 // at the target pose the simulation used (target_ref) and K_eff = K_c - K_c
@@ -28,8 +28,16 @@
 // device agree on t. The thread's deadlines are on CLOCK_MONOTONIC whatever
 // the clock.
 //
-// The output is the command's wrench times three ramps in [0, 1], each
-// linear in session time, and a fourth at stop():
+// The envelope is the product of three ramps in [0, 1], each linear in
+// session time, and a fourth at stop(). It scales the device's limits, so
+// that at every tick, whatever the simulation asks,
+//   |F_out| <= envelope(t) x max_force   and   |T_out| <= envelope(t) x max_torque
+// (the wrench is clamped to the limits, then scaled by the envelope; after
+// the rate limit it is clamped to envelope x limits again, since the rate
+// limit starts from the previous output, which may be above this tick's
+// bound while a ramp goes down). Every clamp aims 8 ulp below its bound, so
+// the norm of the written wrench, computed in double in any order, never
+// exceeds the limit, not even by rounding. The ramps:
 //   soft start  0 -> 1 over soft_start from the first valid command; after a
 //               clutch release or a watchdog recovery it restarts from the
 //               level the output had (s * w * c), so the output never steps;
@@ -183,7 +191,8 @@ struct DeviceLoopOptions {
 //     zero torque.
 //   - Limits: a device limit that is not finite and positive counts as 0.
 //     The rate limit is per tick: |F - F_prev| <= max_force_rate * period
-//     (likewise the torque), period = options.period.
+//     (likewise the torque), period = options.period; it yields to the
+//     envelope bound above (a ramp down may fall faster than the rate limit).
 
 struct DeviceLogRow {
   double t = 0.0;
@@ -200,6 +209,7 @@ struct DeviceLoopStats {
   uint64_t watchdog_events = 0;   // stalls detected (each counted once)
   uint64_t commands = 0;          // commands received
   uint64_t log_overflow = 0;
+  uint64_t missed_deadlines = 0;  // thread mode: periods skipped because a tick overran a whole period
   bool realtime = false;          // SCHED_FIFO granted
   std::vector<double> period_error;  // thread mode: |actual - deadline| per tick, s (preallocated)
 };

@@ -9,12 +9,15 @@
 // the caller once the device is open (default_coupling, hrt/session.h).
 #pragma once
 
+#include <cstdint>
 #include <cstdio>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
 #include "hrt/device.h"
+#include "hrt/files.h"
 #include "hrt/device_loop.h"
 #include "hrt/scene.h"
 #include "hrt/session.h"
@@ -51,7 +54,27 @@ struct DeviceConfig {
 struct TraceConfig {
   std::string path;         // "" = no trace
   std::string device_log;   // per-device-tick CSV ("" = none)
+  // Where each path came from, for messages: the scene key or the flag.
+  std::string path_key = "trace.path", device_log_key = "trace.device_log";
+  // Most rows per second of session time (0: every simulation frame). Left
+  // out: kDefaultRealtimeTraceRate in real time, every frame in lockstep.
+  double rate = 0.0;
+  bool rate_set = false;
+  // The trace stops growing here (a warning; the session goes on).
+  uint64_t max_bytes = uint64_t{1} << 30;
 };
+
+// Limits on what a session allocates and writes (docs/scene-format.md,
+// "Limits"), each checked before anything is allocated: with every value the
+// reader accepts, `hrt run` and `hrt query` stay under 1 GiB of memory.
+// The grid resolution is bounded by kMaxResolution (hrt/depth.h).
+// Device-log rows (112 bytes each, preallocated): 224 MB.
+constexpr size_t kMaxLogCapacity = 2'000'000;
+// Real-time period errors kept for the jitter summary (8 bytes each): the
+// first 4,194,304 ticks (70 min at 1 kHz).
+constexpr size_t kMaxJitterSamples = size_t{1} << 22;
+// Real-time trace rows per second of session time unless [trace] rate says.
+constexpr double kDefaultRealtimeTraceRate = 1000.0;
 
 struct RunConfig {
   std::string file;                   // the scene file
@@ -72,10 +95,40 @@ struct RunConfig {
   std::string gl_search = "compute";
   int occlusion_steps = 16;
   TraceConfig trace;
+  // Where duration came from ("run.duration" or "--duration"), and whether
+  // the file set [loop] log_capacity (else it is sized to the session).
+  std::string duration_key = "run.duration";
+  bool log_capacity_set = false;
 };
 
 // Throws SceneFileError.
 RunConfig load_run_config(const std::string& path);
+
+// Command-line overrides of a scene file (`hrt run`'s flags). Paths are
+// relative to the working directory.
+struct RunOverrides {
+  std::optional<double> duration;   // --duration
+  std::optional<bool> lockstep;     // --lockstep (true) / --realtime (false)
+  bool sched_fifo = false;          // --sched-fifo
+  std::string trace, device_log;    // --trace, --device-log ("" = the file's)
+};
+// Applies the overrides, then check_run_limits. Throws SceneFileError whose
+// key is the flag ("--duration") when a flag's value is the problem.
+void apply_overrides(RunConfig& config, const RunOverrides& overrides);
+// The limits that depend on several keys (the sizes they imply: device-log
+// rows for duration / period, ...) and the defaults that depend on the mode
+// (the trace rate). load_run_config calls it; so does apply_overrides, since
+// a flag can change what a checked file implies.
+void check_run_limits(RunConfig& config);
+// Every output (trace, device log) against every input of the session (the
+// scene file, trajectories, the plugin, every file of every bundle) by
+// identity and resolved path. Throws OutputOverwritesInput (hrt/files.h);
+// nothing is written.
+void check_run_outputs(const RunConfig& config);
+// A device's limits (a plugin's own figures, or the scene's) within the
+// ranges of the scene file's [device] keys; throws DeviceError naming
+// `source` and the limit.
+void check_device_limits(const DeviceInfo& info, const std::string& source);
 
 // Trace writer (docs/trace-format.md): one row per simulation frame. Writes
 // to PATH.partial and renames to PATH on close(), so a crash never leaves a
@@ -85,18 +138,31 @@ struct TraceRow {
   const DeviceTarget* device = nullptr;  // device pose and the wrench last written to it
 };
 
+//
+// The rows follow config.trace: at most `rate` rows per second of session
+// time (a frame is written when its t is at least 1 / rate after the last
+// written row's; 0 writes every frame), and none once the file would pass
+// `max_bytes` (truncated() is then true: the caller warns; the trace stays
+// a valid trace of the session's start).
 class TraceWriter {
  public:
   TraceWriter() = default;
   ~TraceWriter();  // an unclosed writer removes its .partial file
   void open(const std::string& path, const RunConfig& config);
-  void row(const TraceRow& r);
+  // True when the row was written (false: thinned out by the rate, or past max_bytes).
+  bool row(const TraceRow& r);
   void close();
   bool is_open() const { return file_ != nullptr; }
+  uint64_t rows() const { return rows_; }
+  uint64_t bytes() const { return bytes_; }
+  bool truncated() const { return truncated_; }
 
  private:
   std::string path_, partial_;
   std::FILE* file_ = nullptr;
+  double min_interval_ = 0.0, last_t_ = 0.0;
+  uint64_t max_bytes_ = UINT64_MAX, bytes_ = 0, rows_ = 0;
+  bool truncated_ = false;
 };
 
 // Per-tick device log (DeviceLoop::log), same conventions; written at the end.

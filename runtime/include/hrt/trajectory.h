@@ -10,6 +10,7 @@
 // end pose is held.
 #pragma once
 
+#include <cstddef>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -17,6 +18,13 @@
 #include "hrt/contact.h"
 
 namespace hrt {
+
+// Limits of a trajectory file (docs/trajectory-format.md): at most this
+// many samples (72 bytes each in memory, 144 MB; 33 min at 1 kHz), lines of
+// at most this many bytes (a trace row is about 1.5 KB), and the file at
+// most kMaxTrajectoryBytes (hrt/files.h).
+constexpr size_t kMaxTrajectorySamples = 2'000'000;
+constexpr size_t kMaxTrajectoryLine = 65536;
 
 struct TrajectoryError : std::runtime_error {
   using std::runtime_error::runtime_error;  // "FILE: line L: what"

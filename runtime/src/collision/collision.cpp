@@ -693,8 +693,9 @@ Scene::Scene(std::vector<const Model*> objects, const SceneOptions& options)
   for (const Model* m : objects_)
     if (!m) throw std::invalid_argument("a scene object is null");
   const ForceOptions& f = options_.force;
-  if (f.resolution < 8 || f.resolution > 4096)
-    throw std::invalid_argument("resolution must be between 8 and 4096, got " + std::to_string(f.resolution));
+  if (f.resolution < 8 || f.resolution > kMaxResolution)
+    throw std::invalid_argument("resolution must be between 8 and " + std::to_string(kMaxResolution) + ", got " +
+                                std::to_string(f.resolution));
   if (!(f.stiffness > 0) || !std::isfinite(f.stiffness))
     throw std::invalid_argument("stiffness must be a positive number of N/m");
   if (!(f.lin_step >= 0) || !std::isfinite(f.lin_step) || !(f.ang_step >= 0) || !std::isfinite(f.ang_step))
@@ -748,9 +749,9 @@ Scene::Scene(std::vector<const Model*> objects, const SceneOptions& options)
   if (!(c.max_normal_angle_deg > 0 && c.max_normal_angle_deg <= 180))
     throw std::invalid_argument("max_normal_angle_deg must be in (0, 180]");
   if (!(c.track_radius_factor >= 0)) throw std::invalid_argument("track_radius_factor must be >= 0");
-  if (c.auto_resolution && (c.max_resolution < f.resolution || c.max_resolution > 4096))
+  if (c.auto_resolution && (c.max_resolution < f.resolution || c.max_resolution > kMaxResolution))
     throw std::invalid_argument("max_resolution must be between the resolution (" + std::to_string(f.resolution) +
-                                ") and 4096, got " + std::to_string(c.max_resolution));
+                                ") and " + std::to_string(kMaxResolution) + ", got " + std::to_string(c.max_resolution));
   if (!(c.auto_cell_fraction > 0 && c.auto_cell_fraction <= 1))
     throw std::invalid_argument("auto_cell_fraction must be in (0, 1]");
   if (!std::isfinite(options_.collision.margin)) throw std::invalid_argument("margin must be finite");

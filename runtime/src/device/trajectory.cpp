@@ -6,8 +6,13 @@
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
-#include <fstream>
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <sstream>
+
+#include "hrt/files.h"
 
 namespace hrt {
 namespace {
@@ -43,6 +48,51 @@ bool blank_or_comment(const std::string& line) {
   return true;
 }
 
+// Lines of a file descriptor, read in blocks: a line longer than
+// kMaxTrajectoryLine is an error before it is held in memory whole.
+class LineReader {
+ public:
+  explicit LineReader(int fd) : fd_(fd) {}
+  ~LineReader() { ::close(fd_); }
+  LineReader(const LineReader&) = delete;
+  LineReader& operator=(const LineReader&) = delete;
+  // 1: a line in `out` (without its newline); 0: end of file; -1: the line
+  // is too long; 2: a read error.
+  int next(std::string& out) {
+    out.clear();
+    for (;;) {
+      if (pos_ == end_) {
+        if (eof_) return out.empty() ? 0 : 1;
+        ssize_t n;
+        do n = ::read(fd_, buf_, sizeof buf_); while (n < 0 && errno == EINTR);
+        if (n < 0) return 2;
+        if (n == 0) {
+          eof_ = true;
+          continue;
+        }
+        pos_ = 0;
+        end_ = static_cast<size_t>(n);
+      }
+      const char* start = buf_ + pos_;
+      const void* nl = std::memchr(start, '\n', end_ - pos_);
+      const size_t take = nl ? static_cast<size_t>(static_cast<const char*>(nl) - start) : end_ - pos_;
+      if (out.size() + take > kMaxTrajectoryLine) return -1;
+      out.append(start, take);
+      pos_ += take;
+      if (nl) {
+        ++pos_;
+        return 1;
+      }
+    }
+  }
+
+ private:
+  int fd_;
+  char buf_[1 << 16];
+  size_t pos_ = 0, end_ = 0;
+  bool eof_ = false;
+};
+
 std::string fmt(double v) {
   std::ostringstream s;
   s.precision(17);
@@ -77,20 +127,39 @@ void check_and_align(const std::vector<double>& times, std::vector<Pose>& poses,
 }  // namespace
 
 Trajectory Trajectory::load_csv(const std::string& path, const std::string& prefix) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw TrajectoryError(path + ": cannot read the file: " + std::strerror(errno));
+  // A regular file within the size limit (a FIFO would block, /dev/zero
+  // never end), opened without blocking and checked again once open.
+  const std::string name = printable(path, 240);
+  try {
+    check_input_file(path, kMaxTrajectoryBytes);
+  } catch (const InputFileError& e) {
+    throw TrajectoryError(e.what());
+  }
+  const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_NOCTTY | O_CLOEXEC);
+  if (fd < 0) throw TrajectoryError(name + ": cannot read the file: " + std::strerror(errno));
+  LineReader in(fd);
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode))
+    throw TrajectoryError(name + ": cannot read the file: not a regular file");
 
   std::string line;
   size_t line_no = 0;
   std::vector<std::string> header;
-  while (std::getline(in, line)) {
+  auto getline = [&](std::string& out) {
+    const int r = in.next(out);
+    if (r < 0)
+      throw TrajectoryError(name + ": line " + std::to_string(line_no + 1) + ": longer than " +
+                            std::to_string(kMaxTrajectoryLine) + " bytes");
+    if (r == 2) throw TrajectoryError(name + ": line " + std::to_string(line_no + 1) + ": read error");
+    return r == 1;
+  };
+  while (getline(line)) {
     ++line_no;
     if (blank_or_comment(line)) continue;
     header = split_fields(line);
     break;
   }
-  const std::string at_header = path + ": line " + std::to_string(line_no);
-  if (in.bad()) throw TrajectoryError(path + ": cannot read the file (a directory?)");
+  const std::string at_header = name + ": line " + std::to_string(line_no);
   if (header.empty()) throw TrajectoryError(at_header + ": no header line (an empty file)");
 
   // Column indices of t, x, y, z, qx, qy, qz, qw.
@@ -102,12 +171,12 @@ Trajectory Trajectory::load_csv(const std::string& path, const std::string& pref
     for (size_t c = 0; c < header.size(); ++c) {
       if (header[c] == names[k] || (k == 0 && header[c] == "time")) {
         if (column[k] >= 0)
-          throw TrajectoryError(at_header + ": column '" + header[c] + "' appears twice in the header");
+          throw TrajectoryError(at_header + ": column '" + printable(header[c], 60) + "' appears twice in the header");
         column[k] = static_cast<int>(c);
       }
     }
     if (column[k] < 0)
-      throw TrajectoryError(at_header + ": missing column '" + names[k] + "'" + (k == 0 ? " (or 'time')" : "") +
+      throw TrajectoryError(at_header + ": missing column '" + printable(names[k], 60) + "'" + (k == 0 ? " (or 'time')" : "") +
                             " in the header");
   }
   const int needed = *std::max_element(column, column + 8) + 1;
@@ -115,10 +184,13 @@ Trajectory Trajectory::load_csv(const std::string& path, const std::string& pref
   std::vector<double> times;
   std::vector<Pose> poses;
   std::vector<size_t> lines;  // file line of each sample, for the shared checks' messages
-  while (std::getline(in, line)) {
+  while (getline(line)) {
     ++line_no;
     if (blank_or_comment(line)) continue;
-    const std::string at = path + ": line " + std::to_string(line_no);
+    const std::string at = name + ": line " + std::to_string(line_no);
+    if (times.size() >= kMaxTrajectorySamples)
+      throw TrajectoryError(at + ": more than " + std::to_string(kMaxTrajectorySamples) +
+                            " samples, the limit of a trajectory (docs/trajectory-format.md)");
     const std::vector<std::string> fields = split_fields(line);
     if (static_cast<int>(fields.size()) < needed)
       throw TrajectoryError(at + ": " + std::to_string(fields.size()) + " fields, the header's columns need " +
@@ -130,9 +202,11 @@ Trajectory Trajectory::load_csv(const std::string& path, const std::string& pref
       errno = 0;
       v[k] = std::strtod(f.c_str(), &end);
       if (f.empty() || end != f.c_str() + f.size())
-        throw TrajectoryError(at + ": column '" + header[column[k]] + "': '" + f + "' is not a number");
+        throw TrajectoryError(at + ": column '" + printable(header[column[k]], 60) + "': '" + printable(f, 60) +
+                              "' is not a number");
       if (!std::isfinite(v[k]))
-        throw TrajectoryError(at + ": column '" + header[column[k]] + "': " + f + " is not finite");
+        throw TrajectoryError(at + ": column '" + printable(header[column[k]], 60) + "': " + printable(f, 60) +
+                              " is not finite");
     }
     Pose p;
     p.position = Vec3(v[1], v[2], v[3]);
@@ -141,11 +215,10 @@ Trajectory Trajectory::load_csv(const std::string& path, const std::string& pref
     poses.push_back(p);
     lines.push_back(line_no);
   }
-  if (in.bad()) throw TrajectoryError(path + ": line " + std::to_string(line_no) + ": read error");
   if (times.empty())
-    throw TrajectoryError(path + ": line " + std::to_string(line_no) + ": no data rows after the header");
+    throw TrajectoryError(name + ": line " + std::to_string(line_no) + ": no data rows after the header");
 
-  check_and_align(times, poses, [&](size_t i) { return path + ": line " + std::to_string(lines[i]); });
+  check_and_align(times, poses, [&](size_t i) { return name + ": line " + std::to_string(lines[i]); });
   Trajectory out;
   out.times_ = std::move(times);
   out.poses_ = std::move(poses);

@@ -17,6 +17,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 
 namespace hrt {
 
@@ -54,11 +55,28 @@ double safe_norm(const Vec3& v) {
   return m * (v / m).norm();
 }
 
-// Scales v to norm at most `max`; true when it did.
+// The norm a clamp aims at: `max` less 8 units in the last place. Scaling
+// by max / n rounds, and a reader computing the norm in another order (the
+// trace's numpy, a device SDK) rounds again, each by a few ulp: a vector
+// clamped to exactly `max` could read 5.000000000000001 N against 5 N. With
+// the margin every norm computed in double within 4 ulp of the true one is
+// <= max. A relative 1.8e-15 is far below anything a device displays.
+double clamp_target(double max) { return max * (1.0 - 8.0 * std::numeric_limits<double>::epsilon()); }
+
+// Scales v to norm at most clamp_target(max); true when it did. Checked
+// again after the scaling, with both the overflow-safe and the plain norm,
+// and shrunk further until both hold (at most a few passes).
 bool clamp_norm(Eigen::Ref<Vec3> v, double max) {
+  const double target = clamp_target(max);
   const double n = safe_norm(v);
-  if (!(n > max)) return false;
-  v *= max / n;  // max == 0: exactly zero
+  if (!(n > target)) return false;
+  if (!(target > 0)) {
+    v.setZero();  // max == 0 (or a limit that is not a positive number): exactly zero
+    return true;
+  }
+  v *= target / n;
+  for (int pass = 0; pass < 8 && (safe_norm(v) > target || v.norm() > target); ++pass)
+    v *= 1.0 - 4.0 * std::numeric_limits<double>::epsilon();
   return true;
 }
 
@@ -311,24 +329,36 @@ void DeviceLoop::tick() noexcept {
       d.tail<3>() = rotation_vector(target.rotation * s.cmd.target_ref.rotation.conjugate());
       w.noalias() -= s.cmd.stiffness * d;
     }
-    w *= s.soft(t, o.soft_start) * s.watchdog_ramp(t, o.watchdog_ramp) * clutch_ramp * stop_ramp;
   }
+  // The envelope: the product of the ramps, in [0, 1]. It scales the
+  // device's limits, not the command: a probe that starts 10 mm inside asks
+  // for far more than the limit, and scaling that request first would let
+  // the output reach ramp x request (clamped only at the full limit) instead
+  // of ramp x limit.
+  const double envelope = (s.have_cmd && s.have_pose)
+                              ? std::clamp(s.soft(t, o.soft_start) * s.watchdog_ramp(t, o.watchdog_ramp) *
+                                               clutch_ramp * stop_ramp,
+                                           0.0, 1.0)
+                              : 0.0;
 
   // 7. Into the device frame; torque policy.
   Vec6 out = s.map.wrench_to_device(w);
   if (info.dof_actuated < 6) out.tail<3>().setZero();
 
   // 8. NaN guard: a non-finite output (an overflow of K_eff d, say) is never
-  // sent; the previous output, already safe, is kept.
+  // sent; the previous output, already safe, is kept (and bounded again
+  // below by this tick's envelope).
   if (!out.allFinite()) {
     ++stats_.non_finite;
     out = s.output;
   }
 
-  // 9. Clamp to the device's limits (norms, direction kept).
+  // 9. Clamp to the device's limits (norms, direction kept), then ramp: the
+  // output is at most envelope x limit whatever the simulation asked.
   const double max_force = limit(info.max_force), max_torque = limit(info.max_torque);
   if (clamp_norm(out.head<3>(), max_force)) ++stats_.force_clamps;
   if (clamp_norm(out.tail<3>(), max_torque)) ++stats_.torque_clamps;
+  out *= envelope;
 
   // 10. Rate limit (per tick; full force in ten periods by default).
   const double force_rate = o.max_force_rate >= 0 ? o.max_force_rate : max_force / 0.01;
@@ -337,7 +367,14 @@ void DeviceLoop::tick() noexcept {
   const bool limited_t = rate_limit(out.tail<3>(), s.output.tail<3>(), torque_rate * o.period);
   if (limited_f || limited_t) ++stats_.rate_limited;
 
-  // 11. Write, log, count.
+  // 11. The hard bound, last: |F| <= envelope x max_force and |T| <=
+  // envelope x max_torque at every tick. The rate limit starts from the
+  // previous output, which may be above this tick's bound while a ramp goes
+  // down (watchdog, clutch, stop); the bound wins over the rate limit.
+  clamp_norm(out.head<3>(), envelope * max_force);
+  clamp_norm(out.tail<3>(), envelope * max_torque);
+
+  // 12. Write, log, count.
   device_.write(t, out);
   s.output = out;
   if (log_size_ < log_.size()) {
@@ -389,7 +426,12 @@ void DeviceLoop::Internal::thread_main(DeviceLoop& self) {
       if ((ramped && (s.output.array() == 0.0).all()) || s.stop_ticks >= max_stop_ticks) break;
     }
     deadline += period_ns;
-    if (deadline <= now) deadline = now + period_ns;  // overran a whole period: restart the grid
+    if (deadline <= now) {
+      // Overran a whole period: the periods in between are missed (counted),
+      // and the grid restarts from now.
+      st.missed_deadlines += static_cast<uint64_t>((now - deadline) / period_ns) + 1;
+      deadline = now + period_ns;
+    }
   }
 
   // Zero, whatever the ramp and the rate limit left.

@@ -23,12 +23,19 @@
 
 #include <toml++/toml.h>
 
+#include "hrt/files.h"
 #include "hrt/run_config.h"
 
 namespace hrt {
 
+// The message is one line of printable text whatever the file held: the
+// values quoted in `what` are cut where they are inserted (quote_value()); this
+// escapes what is left (a control byte in a key name, a parser's message).
 SceneFileError::SceneFileError(const std::string& f, const std::string& k, const std::string& what)
-    : std::runtime_error(f + ": " + (k.empty() ? std::string() : k + ": ") + what), file(f), key(k) {}
+    : std::runtime_error(printable(f, 240) + ": " + (k.empty() ? std::string() : printable(k, 120) + ": ") +
+                         printable(what, 600)),
+      file(f),
+      key(k) {}
 
 namespace {
 
@@ -41,8 +48,51 @@ constexpr double kMaxPosition = 1e4;
 // for `hrt query --pose`: one far from 1 is most likely in w x y z order or
 // not a rotation at all.
 constexpr double kQuaternionTolerance = 1e-3;
-// Most ticks of the device log (each row is about 110 bytes, preallocated).
-constexpr int64_t kMaxLogCapacity = 10'000'000;
+// A string value of the file, quoted for a message: cut to 80 characters,
+// control bytes escaped.
+std::string quote_value(const std::string& v) { return "\"" + printable(v, 80) + "\""; }
+
+// A key's accepted values, with the unit and the reason for the message.
+struct Range {
+  double lo, hi;
+  const char* unit;
+  const char* why;
+};
+
+// The ranges of docs/scene-format.md, grounded in what devices and the
+// physics can use: a value outside is a mistake (a unit slip, a typo of the
+// exponent), never a setting that does something useful. A stiffness of
+// 1 N/m gives 1 mN at 1 mm; one of 1e308 makes the coupling and the
+// contact meaningless.
+const Range kDuration{1e-3, 86400.0, "s", "a session of at most a day"};
+const Range kMaxStep{1e-4, 1.0, "s", ""};
+const Range kContactStiffness{1.0, 1e7, "N/m", "1 N/m gives 1 mN at 1 mm; 1e7 N/m gives 10 N at 1 um"};
+const Range kLinStep{0.0, 0.1, "m", "0: one grid texel"};
+const Range kAngStep{0.0, 0.5, "rad", "0: the matching angle"};
+const Range kMargin{0.0, 0.1, "m", ""};
+const Range kFadeTime{1e-3, 10.0, "s", ""};
+const Range kDensity{1.0, 1e5, "kg/m^3", "aerogel to well past osmium"};
+const Range kGravity{0.0, 1000.0, "m/s^2", "the norm of the vector"};
+const Range kCouplingK{1.0, 1e6, "N/m", ""};
+const Range kCouplingB{0.0, 1e4, "N s/m", ""};
+const Range kCouplingKAng{1e-3, 1e4, "N m/rad", ""};
+const Range kCouplingBAng{0.0, 1e3, "N m s/rad", ""};
+const Range kFriction{0.0, 10.0, "", "a coefficient of friction"};
+const Range kScale{1e-3, 1e3, "", "scene displacement per device displacement"};
+const Range kWorkspace{1e-3, 10.0, "m", "half extents of the handle's workspace"};
+const Range kMaxForce{1e-3, 1000.0, "N", "haptic devices display mN to hundreds of N"};
+const Range kMaxTorque{1e-4, 100.0, "N m", ""};
+const Range kMaxStiffness{1.0, 1e6, "N/m", "1 mm must give at least 1 mN"};
+const Range kMaxAngularStiffness{1e-3, 1e4, "N m/rad", "1 rad must give at least 1 mN m"};
+const Range kDisplayRate{1.0, 1000.0, "Hz", ""};
+const Range kPeriod{1e-4, 0.1, "s", "a device loop runs at 10 Hz to 10 kHz"};
+const Range kWatchdog{1e-3, 10.0, "s", ""};
+const Range kWatchdogRamp{1e-4, 1.0, "s", ""};
+const Range kSoftStart{0.0, 60.0, "s", ""};
+const Range kForceRate{1e-3, 1e7, "N/s", ""};
+const Range kTorqueRate{1e-4, 1e6, "N m/s", ""};
+const Range kTraceRate{0.0, 1e6, "Hz", "0: a row for every simulation frame"};
+const Range kTraceMaxBytes{1e6, 1e12, "bytes", ""};
 
 // Every table and its keys: the single list the unknown-key check and its
 // suggestions use (docs/scene-format.md documents the same keys).
@@ -65,7 +115,7 @@ const std::map<std::string, std::vector<std::string>>& known_keys() {
       {"loop",
        {"period", "watchdog", "watchdog_ramp", "soft_start", "max_force_rate", "max_torque_rate", "multirate",
         "realtime", "priority", "log_capacity"}},
-      {"trace", {"path", "device_log"}},
+      {"trace", {"path", "device_log", "rate", "max_bytes"}},
   };
   return k;
 }
@@ -193,6 +243,14 @@ class Section {
     if (v && !(*v >= 0)) fail(k, "must be >= 0, got " + fmt(*v));
     return v.value_or(def);
   }
+  // Within [lo, hi] (docs/scene-format.md gives each key's range and why).
+  double range(const std::string& k, double def, const Range& r) const {
+    const auto v = number(k);
+    if (v && !(*v >= r.lo && *v <= r.hi))
+      fail(k, "must be between " + fmt(r.lo) + " and " + fmt(r.hi) + (r.unit[0] ? std::string(" ") + r.unit : "") +
+                  ", got " + fmt(*v) + (r.why[0] ? std::string(" (") + r.why + ")" : ""));
+    return v.value_or(def);
+  }
 
   std::optional<int64_t> integer(const std::string& k, int64_t lo, int64_t hi) const {
     const toml::node* n = node(k);
@@ -230,7 +288,7 @@ class Section {
     if (std::find(allowed.begin(), allowed.end(), v) == allowed.end()) {
       std::string list;
       for (const std::string& a : allowed) list += (list.empty() ? "\"" : ", \"") + a + "\"";
-      fail(k, "must be one of " + list + ", got \"" + v + "\"");
+      fail(k, "must be one of " + list + ", got " + quote_value(v));
     }
     return v;
   }
@@ -241,9 +299,16 @@ class Section {
     if (s->empty()) fail(k, "empty path (leave the key out instead)");
     return ctx_.resolve(*s);
   }
-  std::optional<std::string> existing_file(const std::string& k) const {
+  // A path to a regular file of at most max_bytes (hrt/files.h: a FIFO or
+  // a device is named as such, not read).
+  std::optional<std::string> existing_file(const std::string& k, uint64_t max_bytes) const {
     const auto p = path(k);
-    if (p && !fs::is_regular_file(*p)) fail(k, "no such file: " + *p);
+    if (!p) return p;
+    try {
+      check_input_file(*p, max_bytes);
+    } catch (const InputFileError& e) {
+      fail(k, e.what());
+    }
     return p;
   }
 
@@ -322,16 +387,11 @@ void check_parent_folder(const Section& s, const std::string& k, const std::stri
   if (!parent.empty() && !fs::is_directory(parent)) s.fail(k, "the folder " + parent.string() + " does not exist");
 }
 
-bool same_file(const std::string& a, const std::string& b) {
-  std::error_code ea, eb;
-  const fs::path ca = fs::weakly_canonical(a, ea), cb = fs::weakly_canonical(b, eb);
-  return !ea && !eb && ca == cb;
-}
 
 void check_address(const Section& s, const std::string& k, const std::string& address) {
   in_addr a{};
   if (inet_pton(AF_INET, address.c_str(), &a) != 1)
-    s.fail(k, "\"" + address + "\" is not an IPv4 address (dotted numbers, e.g. \"127.0.0.1\")");
+    s.fail(k, quote_value(address) + " is not an IPv4 address (dotted numbers, e.g. \"127.0.0.1\")");
 }
 
 // Reads [device]; the keys of another device type are errors (a port on a
@@ -357,7 +417,7 @@ void read_device(const Section& s, DeviceConfig& d) {
       if (s.has(k)) s.fail(k, "a plugin device reports its own (only its limits can be set here)");
 
   if (d.type == "scripted") {
-    const auto t = s.existing_file("trajectory");
+    const auto t = s.existing_file("trajectory", kMaxTrajectoryBytes);
     if (!t) s.missing("trajectory", "a scripted device needs a trajectory CSV (docs/trajectory-format.md)");
     d.trajectory = *t;
     d.trajectory_prefix = s.string("trajectory_prefix", "");
@@ -375,10 +435,10 @@ void read_device(const Section& s, DeviceConfig& d) {
     u.display_address = s.string("display_address", u.display_address);
     check_address(s, "display_address", u.display_address);
     u.display_port = s.integer("display_port", u.display_port, 0, 65535);
-    u.display_rate_hz = s.positive("display_rate", u.display_rate_hz);
+    u.display_rate_hz = s.range("display_rate", u.display_rate_hz, kDisplayRate);
   }
   if (d.type == "plugin") {
-    const auto p = s.existing_file("plugin");
+    const auto p = s.existing_file("plugin", kMaxPluginBytes);
     if (!p) s.missing("plugin", "a plugin device needs the path of its shared library");
     d.plugin = *p;
     d.plugin_config = s.string("config", "");
@@ -398,22 +458,24 @@ void read_device(const Section& s, DeviceConfig& d) {
   if (s.has("workspace")) {
     info.workspace = s.vec3("workspace", info.workspace);
     for (int i = 0; i < 3; ++i)
-      if (!(info.workspace[i] > 0)) s.fail("workspace", "half extents must be > 0 m, got " + fmt(info.workspace[i]));
+      if (!(info.workspace[i] >= kWorkspace.lo && info.workspace[i] <= kWorkspace.hi))
+        s.fail("workspace", "half extents must be between " + fmt(kWorkspace.lo) + " and " + fmt(kWorkspace.hi) +
+                                " m, got " + fmt(info.workspace[i]));
   }
   d.max_force_set = s.has("max_force");
   d.max_torque_set = s.has("max_torque");
   d.max_stiffness_set = s.has("max_stiffness");
   d.max_angular_stiffness_set = s.has("max_angular_stiffness");
-  info.max_force = s.positive("max_force", info.max_force);
-  info.max_torque = s.positive("max_torque", info.max_torque);
-  info.max_stiffness = s.positive("max_stiffness", info.max_stiffness);
-  info.max_angular_stiffness = s.positive("max_angular_stiffness", info.max_angular_stiffness);
+  info.max_force = s.range("max_force", info.max_force, kMaxForce);
+  info.max_torque = s.range("max_torque", info.max_torque, kMaxTorque);
+  info.max_stiffness = s.range("max_stiffness", info.max_stiffness, kMaxStiffness);
+  info.max_angular_stiffness = s.range("max_angular_stiffness", info.max_angular_stiffness, kMaxAngularStiffness);
 }
 
 Material read_material(const Section& s, Material m) {
-  if (s.has("stiffness")) m.stiffness = s.positive("stiffness", m.stiffness);
-  m.mu_static = s.nonnegative("mu_static", m.mu_static);
-  m.mu_dynamic = s.nonnegative("mu_dynamic", m.mu_dynamic);
+  if (s.has("stiffness")) m.stiffness = s.range("stiffness", m.stiffness, kContactStiffness);
+  m.mu_static = s.range("mu_static", m.mu_static, kFriction);
+  m.mu_dynamic = s.range("mu_dynamic", m.mu_dynamic, kFriction);
   if (m.mu_dynamic > m.mu_static) {
     // Name the key the file set (an inherited value cannot be the mistake).
     const std::string k = s.has("mu_dynamic") ? "mu_dynamic" : "mu_static";
@@ -429,17 +491,18 @@ RunConfig load_run_config(const std::string& path) {
   ctx.file = path;
   ctx.dir = fs::path(path).parent_path();
 
-  std::error_code ec;
-  if (fs::is_directory(path, ec)) throw SceneFileError(path, "", "is a folder, not a scene file");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) throw SceneFileError(path, "", std::string("cannot read: ") + std::strerror(errno));
-  std::ostringstream text;
-  text << in.rdbuf();
-  if (in.bad()) throw SceneFileError(path, "", "cannot read: I/O error");
+  // A regular file of at most kMaxSceneFileBytes: a FIFO would block the
+  // read and /dev/zero would never end it.
+  std::string text;
+  try {
+    text = read_input_file(path, kMaxSceneFileBytes);
+  } catch (const InputFileError& e) {
+    throw SceneFileError(path, "", e.problem);
+  }
 
   toml::table root;
   try {
-    root = toml::parse(text.str(), path);
+    root = toml::parse(text, path);
   } catch (const toml::parse_error& e) {
     const auto& b = e.source().begin;
     throw SceneFileError(path, "", "line " + std::to_string(b.line) + ", column " + std::to_string(b.column) + ": " +
@@ -482,10 +545,10 @@ RunConfig load_run_config(const std::string& path) {
   // [run]
   {
     const Section s = section("run");
-    c.duration = s.positive("duration", c.duration);
+    c.duration = s.range("duration", c.duration, kDuration);
     c.lockstep = s.boolean("lockstep", c.lockstep);
-    c.sim_every = s.integer("sim_every", c.sim_every, 1, 1'000'000);
-    c.max_step = s.positive("max_step", c.max_step);
+    c.sim_every = s.integer("sim_every", c.sim_every, 1, 10'000);
+    c.max_step = s.range("max_step", c.max_step, kMaxStep);
     c.backend = s.choice("backend", c.backend, {"cpu", "gl", "auto"});
     // The GL backend's settings: refused where no GL backend can run (a
     // setting that does nothing is a scene that does not do what its author
@@ -513,7 +576,7 @@ RunConfig load_run_config(const std::string& path) {
       o.name = s.string("name", "object" + std::to_string(i));
       if (o.name.empty()) s.fail("name", "must not be empty");
       for (size_t j = 0; j < c.objects.size(); ++j)
-        if (c.objects[j].name == o.name) s.fail("name", "\"" + o.name + "\" is also the name of object[" + std::to_string(j) + "]");
+        if (c.objects[j].name == o.name) s.fail("name", quote_value(o.name) + " is also the name of object[" + std::to_string(j) + "]");
       const auto bundle = s.path("bundle");
       if (!bundle) s.missing("bundle", "every object needs the path of its bundle (a *.hbundle folder)");
       if (!fs::is_directory(*bundle)) s.fail("bundle", "no bundle folder at " + *bundle);
@@ -524,7 +587,7 @@ RunConfig load_run_config(const std::string& path) {
         s.fail("trajectory",
                "object[0] is the probe: it follows the device through the coupling, not a trajectory (a scripted "
                "device plays one: [device] trajectory)");
-      o.trajectory = s.existing_file("trajectory").value_or("");
+      o.trajectory = s.existing_file("trajectory", kMaxTrajectoryBytes).value_or("");
       c.objects.push_back(std::move(o));
     }
   }
@@ -533,10 +596,10 @@ RunConfig load_run_config(const std::string& path) {
   {
     const Section s = section("force");
     ForceOptions& f = c.scene.force;
-    f.stiffness = s.positive("stiffness", f.stiffness);
-    f.resolution = s.integer("resolution", f.resolution, 8, 4096);
-    f.lin_step = s.nonnegative("lin_step", f.lin_step);
-    f.ang_step = s.nonnegative("ang_step", f.ang_step);
+    f.stiffness = s.range("stiffness", f.stiffness, kContactStiffness);
+    f.resolution = s.integer("resolution", f.resolution, 8, kMaxResolution);
+    f.lin_step = s.range("lin_step", f.lin_step, kLinStep);
+    f.ang_step = s.range("ang_step", f.ang_step, kAngStep);
     f.shortcut = s.boolean("shortcut", f.shortcut);
     // The GL backend implements full re-rasterization only (hrt/gl_depth.h):
     // refused here rather than at the first contact of the session. (auto
@@ -545,23 +608,25 @@ RunConfig load_run_config(const std::string& path) {
       s.fail("shortcut", "the Sec. 5.2 shortcut is implemented by the CPU backend only, and run.backend is \"gl\"");
     f.heights = s.choice("heights", "surface", {"surface", "coarse"}) == "coarse" ? HeightMode::coarse
                                                                                    : HeightMode::surface;
-    c.scene.collision.margin = s.nonnegative("margin", c.scene.collision.margin);
+    c.scene.collision.margin = s.range("margin", c.scene.collision.margin, kMargin);
     ClusterOptions& cl = c.scene.cluster;
     cl.max_patches = s.integer("max_patches", cl.max_patches, 1, 4096);
     cl.auto_resolution = s.boolean("auto_resolution", cl.auto_resolution);
-    cl.max_resolution = s.integer("max_resolution", cl.max_resolution, 8, 4096);
+    cl.max_resolution = s.integer("max_resolution", cl.max_resolution, 8, kMaxResolution);
     if (cl.auto_resolution && cl.max_resolution < f.resolution)
       s.fail(s.has("max_resolution") ? "max_resolution" : "resolution",
              "max_resolution (" + std::to_string(cl.max_resolution) + ") must be at least the resolution (" +
                  std::to_string(f.resolution) + ")");
-    c.session.fade_time = s.positive("fade_time", c.session.fade_time);
+    c.session.fade_time = s.range("fade_time", c.session.fade_time, kFadeTime);
   }
 
   // [probe]
   {
     const Section s = section("probe");
-    c.session.density = s.positive("density", c.session.density);
+    c.session.density = s.range("density", c.session.density, kDensity);
     c.session.gravity = s.vec3("gravity", c.session.gravity);
+    if (!(c.session.gravity.norm() <= kGravity.hi))
+      s.fail("gravity", "its norm must be at most " + fmt(kGravity.hi) + " m/s^2, got " + fmt(c.session.gravity.norm()));
   }
 
   // [coupling]: all four gains or none (then from the device's limits).
@@ -576,10 +641,10 @@ RunConfig load_run_config(const std::string& path) {
         if (!s.has(g))
           s.missing(g, "give all four gains k_lin, b_lin, k_ang, b_ang, or none (then they follow the device's limits)");
     if (given == 4) {
-      c.session.coupling.k_lin = s.positive("k_lin", 0.0);
-      c.session.coupling.b_lin = s.nonnegative("b_lin", 0.0);
-      c.session.coupling.k_ang = s.positive("k_ang", 0.0);
-      c.session.coupling.b_ang = s.nonnegative("b_ang", 0.0);
+      c.session.coupling.k_lin = s.range("k_lin", 0.0, kCouplingK);
+      c.session.coupling.b_lin = s.range("b_lin", 0.0, kCouplingB);
+      c.session.coupling.k_ang = s.range("k_ang", 0.0, kCouplingKAng);
+      c.session.coupling.b_ang = s.range("b_ang", 0.0, kCouplingBAng);
       c.coupling_from_device = false;
     } else {
       // Negative until the caller fills them from the open device
@@ -610,12 +675,12 @@ RunConfig load_run_config(const std::string& path) {
         std::vector<std::string> names;
         for (size_t j = 1; j < c.objects.size(); ++j) names.push_back(c.objects[j].name);
         const std::string near = closest(*name, names);
-        s.fail("object", "no object is named \"" + *name + "\"" + (near.empty() ? "" : " (did you mean \"" + near + "\"?)"));
+        s.fail("object", "no object is named " + quote_value(*name) + (near.empty() ? "" : " (did you mean " + quote_value(near) + "?)"));
       }
       if (b == 0)
-        s.fail("object", "\"" + *name + "\" is the probe; a material belongs to a pair (probe, object): name the other object");
+        s.fail("object", quote_value(*name) + " is the probe; a material belongs to a pair (probe, object): name the other object");
       if (set_by[static_cast<size_t>(b)] >= 0)
-        s.fail("object", "\"" + *name + "\" already has material[" + std::to_string(set_by[static_cast<size_t>(b)]) + "]");
+        s.fail("object", quote_value(*name) + " already has material[" + std::to_string(set_by[static_cast<size_t>(b)]) + "]");
       set_by[static_cast<size_t>(b)] = static_cast<int>(i);
       c.session.materials[static_cast<size_t>(b)] = read_material(s, c.session.material);
     }
@@ -631,7 +696,7 @@ RunConfig load_run_config(const std::string& path) {
   {
     const Section s = section("workspace");
     WorkspaceMap& m = c.loop.map;
-    m.scale = s.positive("scale", m.scale);
+    m.scale = s.range("scale", m.scale, kScale);
     m.offset.position = s.position("offset_position");
     m.offset.rotation = s.quaternion("offset_orientation");
     m.grasp.position = s.position("grasp_position");
@@ -650,17 +715,17 @@ RunConfig load_run_config(const std::string& path) {
   {
     const Section s = section("loop");
     DeviceLoopOptions& l = c.loop;
-    l.period = s.positive("period", l.period);
-    if (l.period > 0.1) s.fail("period", "must be at most 0.1 s (a device loop runs at 10 Hz or faster), got " + fmt(l.period));
-    l.watchdog = s.positive("watchdog", l.watchdog);
-    l.watchdog_ramp = s.positive("watchdog_ramp", l.watchdog_ramp);
-    l.soft_start = s.nonnegative("soft_start", l.soft_start);
-    l.max_force_rate = s.positive("max_force_rate", l.max_force_rate);
-    l.max_torque_rate = s.positive("max_torque_rate", l.max_torque_rate);
+    l.period = s.range("period", l.period, kPeriod);
+    l.watchdog = s.range("watchdog", l.watchdog, kWatchdog);
+    l.watchdog_ramp = s.range("watchdog_ramp", l.watchdog_ramp, kWatchdogRamp);
+    l.soft_start = s.range("soft_start", l.soft_start, kSoftStart);
+    l.max_force_rate = s.range("max_force_rate", l.max_force_rate, kForceRate);
+    l.max_torque_rate = s.range("max_torque_rate", l.max_torque_rate, kTorqueRate);
     l.multirate = s.boolean("multirate", l.multirate);
     l.realtime = s.boolean("realtime", l.realtime);
     l.realtime_priority = s.integer("priority", l.realtime_priority, 1, 99);
-    if (const auto cap = s.integer("log_capacity", 0, kMaxLogCapacity)) l.log_capacity = static_cast<size_t>(*cap);
+    if (const auto cap = s.integer("log_capacity", 0, static_cast<int64_t>(kMaxLogCapacity)))
+      l.log_capacity = static_cast<size_t>(*cap);
     if (c.max_step < l.period && section("run").has("max_step"))
       section("run").fail("max_step", "must be at least the device period (" + fmt(l.period) + " s), got " + fmt(c.max_step));
   }
@@ -674,33 +739,112 @@ RunConfig load_run_config(const std::string& path) {
     // written after the session, and a typo must not cost the run.
     if (!c.trace.path.empty()) check_parent_folder(s, "path", c.trace.path);
     if (!c.trace.device_log.empty()) check_parent_folder(s, "device_log", c.trace.device_log);
-    if (!c.trace.path.empty() && !c.trace.device_log.empty() && same_file(c.trace.path, c.trace.device_log))
-      s.fail("device_log", "is the same file as path");
-    // A replayed trace must not be overwritten by the replay's own trace.
-    for (const char* k : {"path", "device_log"}) {
-      const std::string& p = std::string(k) == "path" ? c.trace.path : c.trace.device_log;
-      if (p.empty()) continue;
-      if (!c.device.trajectory.empty() && same_file(p, c.device.trajectory))
-        s.fail(k, "is the device's trajectory (" + c.device.trajectory + "): the run would overwrite its input");
-      for (const ObjectConfig& o : c.objects)
-        if (!o.trajectory.empty() && same_file(p, o.trajectory))
-          s.fail(k, "is the trajectory of object \"" + o.name + "\": the run would overwrite its input");
+    c.trace.rate_set = s.has("rate");
+    c.trace.rate = s.range("rate", c.trace.rate, kTraceRate);
+    c.trace.max_bytes = static_cast<uint64_t>(s.range("max_bytes", static_cast<double>(c.trace.max_bytes), kTraceMaxBytes));
+    if (!c.trace.device_log.empty() && section("loop").has("log_capacity") && c.loop.log_capacity == 0)
+      section("loop").fail("log_capacity", "is 0 but [trace] device_log is set: nothing would be logged");
+  }
+  c.log_capacity_set = section("loop").has("log_capacity");
+  check_run_limits(c);
+  return c;
+}
+
+// ---------------------------------------------------------------------------
+// Limits that depend on several keys, command-line overrides, outputs
+// ---------------------------------------------------------------------------
+
+void check_run_limits(RunConfig& c) {
+  auto fail = [&](const std::string& key, const std::string& what) { throw SceneFileError(c.file, key, what); };
+  // The device loop's ticks in the session (the stop ramp included).
+  const double ticks = std::ceil((c.duration + c.loop.watchdog_ramp) / c.loop.period) + 1.0;
+  if (!c.trace.device_log.empty()) {
+    if (c.log_capacity_set) {
+      if (c.loop.log_capacity == 0) fail("loop.log_capacity", "is 0 but a device log is asked for: nothing would be logged");
+      // Never more rows than the session has ticks: a capacity of millions
+      // for a 0.2 s session would be allocated for nothing.
+      c.loop.log_capacity = std::min(c.loop.log_capacity, static_cast<size_t>(ticks));
+    } else {
+      if (ticks > static_cast<double>(kMaxLogCapacity))
+        fail(c.duration_key, "a device log of the whole session (" + fmt(c.duration) + " s at " + fmt(c.loop.period) +
+                                 " s per tick) needs " + fmt(ticks) + " ticks, more than the limit of " +
+                                 std::to_string(kMaxLogCapacity) +
+                                 "; set [loop] log_capacity to log the session's start only, or shorten it");
+      c.loop.log_capacity = static_cast<size_t>(ticks);
     }
-    if (!c.trace.device_log.empty()) {
-      const Section loop = section("loop");
-      if (!loop.has("log_capacity")) {
-        // Enough ticks for the whole session (plus the stop ramp).
-        const double ticks = std::ceil((c.duration + c.loop.watchdog_ramp) / c.loop.period) + 1.0;
-        if (ticks > static_cast<double>(kMaxLogCapacity))
-          s.fail("device_log", "a log of the whole session needs " + fmt(ticks) + " ticks, more than " +
-                                   std::to_string(kMaxLogCapacity) + "; set [loop] log_capacity to log its start only");
-        c.loop.log_capacity = static_cast<size_t>(ticks);
-      } else if (c.loop.log_capacity == 0) {
-        loop.fail("log_capacity", "is 0 but [trace] device_log is set: nothing would be logged");
-      }
+  } else {
+    c.loop.log_capacity = 0;  // nothing reads it: allocate nothing
+  }
+  if (c.max_step < c.loop.period)
+    fail("run.max_step", "must be at least the device period (" + fmt(c.loop.period) + " s), got " + fmt(c.max_step));
+  // Traces: real time writes at most trace.rate rows per second of session
+  // time (1 kHz unless set; a frame loop out of contact runs at tens of kHz
+  // and would write tens of MB a second); lockstep writes every frame unless
+  // the rate is set. Either way the file stops growing at max_bytes.
+  if (!c.trace.rate_set) c.trace.rate = c.lockstep ? 0.0 : kDefaultRealtimeTraceRate;
+}
+
+void apply_overrides(RunConfig& c, const RunOverrides& o) {
+  if (o.duration) {
+    if (!(*o.duration >= kDuration.lo && *o.duration <= kDuration.hi))
+      throw SceneFileError(c.file, "--duration", "must be between " + fmt(kDuration.lo) + " and " + fmt(kDuration.hi) +
+                                                     " s, got " + fmt(*o.duration));
+    c.duration = *o.duration;
+    c.duration_key = "--duration";
+  }
+  if (o.lockstep) c.lockstep = *o.lockstep;
+  if (o.sched_fifo) c.loop.realtime = true;
+  // Paths given on the command line are relative to the working directory.
+  if (!o.trace.empty()) {
+    c.trace.path = o.trace;
+    c.trace.path_key = "--trace";
+  }
+  if (!o.device_log.empty()) {
+    c.trace.device_log = o.device_log;
+    c.trace.device_log_key = "--device-log";
+  }
+  check_run_limits(c);
+}
+
+InputFiles run_inputs(const RunConfig& c) {
+  InputFiles in;
+  in.add(c.file, "the scene file");
+  for (size_t i = 0; i < c.objects.size(); ++i) {
+    const ObjectConfig& o = c.objects[i];
+    in.add(o.bundle, "a file of the bundle of object " + quote_value(o.name));
+    if (!o.trajectory.empty()) in.add(o.trajectory, "the trajectory of object " + quote_value(o.name));
+  }
+  if (!c.device.trajectory.empty()) in.add(c.device.trajectory, "the device's trajectory");
+  if (!c.device.plugin.empty()) in.add(c.device.plugin, "the device plugin");
+  return in;
+}
+
+void check_run_outputs(const RunConfig& c) {
+  const InputFiles in = run_inputs(c);
+  if (!c.trace.path.empty()) in.check_output(c.trace.path, c.trace.path_key);
+  if (!c.trace.device_log.empty()) {
+    in.check_output(c.trace.device_log, c.trace.device_log_key);
+    if (!c.trace.path.empty()) {
+      InputFiles trace;
+      trace.add(c.trace.path, "the trace (" + c.trace.path_key + ")");
+      trace.add_path(c.trace.path, "the trace (" + c.trace.path_key + ")");
+      trace.check_output(c.trace.device_log, c.trace.device_log_key);
     }
   }
-  return c;
+}
+
+void check_device_limits(const DeviceInfo& info, const std::string& source) {
+  auto check = [&](const char* key, double v, const Range& r) {
+    if (!(v >= r.lo && v <= r.hi))
+      throw DeviceError(printable(source, 240) + ": " + key + " " + fmt(v) + " is outside " + fmt(r.lo) + " .. " +
+                        fmt(r.hi) + (r.unit[0] ? std::string(" ") + r.unit : "") +
+                        " (set it in the scene's [device] table to override the device's own figure)");
+  };
+  check("max_force", info.max_force, kMaxForce);
+  check("max_torque", info.max_torque, kMaxTorque);
+  check("max_stiffness", info.max_stiffness, kMaxStiffness);
+  check("max_angular_stiffness", info.max_angular_stiffness, kMaxAngularStiffness);
+  for (int i = 0; i < 3; ++i) check("workspace", info.workspace[i], kWorkspace);
 }
 
 }  // namespace hrt

@@ -135,19 +135,28 @@ TraceWriter::~TraceWriter() {
 void TraceWriter::open(const std::string& path, const RunConfig& config) {
   // The columns are the same for every scene (one reader reads every trace);
   // the configuration does not change them.
-  (void)config;
   if (file_) throw std::logic_error("TraceWriter::open(" + path + "): already open on " + path_);
   path_ = path;
   partial_ = path + ".partial";
+  min_interval_ = config.trace.rate > 0 ? 1.0 / config.trace.rate : 0.0;
+  max_bytes_ = config.trace.max_bytes;
+  bytes_ = rows_ = 0;
+  truncated_ = false;
   file_ = open_partial(path_, partial_);
   write_all(file_, path_, kTraceHeader, std::strlen(kTraceHeader));
+  bytes_ = std::strlen(kTraceHeader);
 }
 
-void TraceWriter::row(const TraceRow& r) {
+bool TraceWriter::row(const TraceRow& r) {
   if (!file_) throw std::logic_error("TraceWriter::row: not open");
   if (!r.frame || !r.device) throw std::invalid_argument(path_ + ": a trace row needs a frame and a device target");
   const SessionFrame& f = *r.frame;
   const DeviceTarget& d = *r.device;
+  if (truncated_) return false;
+  // The rate: a row when at least min_interval_ of session time has passed
+  // since the last one written (less a relative 1e-9, so a frame exactly on
+  // the grid is not dropped by rounding).
+  if (rows_ > 0 && min_interval_ > 0 && f.t - last_t_ < min_interval_ * (1.0 - 1e-9)) return false;
   Line l;
   l.num(f.t);
   l.num(f.h);
@@ -179,7 +188,15 @@ void TraceWriter::row(const TraceRow& r) {
   l.num(f.dynamics_us);
   l.num(f.timings.total_us + f.dynamics_us);
   l.end_row();
+  if (bytes_ + l.size() > max_bytes_) {
+    truncated_ = true;
+    return false;
+  }
   write_all(file_, path_, l.data(), l.size());
+  bytes_ += l.size();
+  ++rows_;
+  last_t_ = f.t;
+  return true;
 }
 
 void TraceWriter::close() {
