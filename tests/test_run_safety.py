@@ -170,13 +170,16 @@ def _test_plugin(hrt, case: str) -> Path:
     return p
 
 
-def _plugin_scene(models, tmp_path, plugin, name="plugin", duration=10.0, trace=True):
-    z = SLAB_TOP + S.TIP_R + 1 * MM
+def _plugin_scene(models, tmp_path, plugin, name="plugin", duration=10.0, trace=True, config=""):
+    # The test plugins hold the handle at the device's origin: the workspace offset puts
+    # that 5 cm above the slab, clear of it.
+    z = 0.05
     t = {
         "run": {"duration": duration},
         "object": objects(models, "tip", (0.0, 0.0, z)),
         "force": {"resolution": RES},
-        "device": {"type": "plugin", "plugin": plugin},
+        "workspace": {"offset_position": [0.0, 0.0, z]},
+        "device": {"type": "plugin", "plugin": plugin, "config": config},
     }
     if trace:
         t["trace"] = {"path": tmp_path / f"{name}-trace.csv"}
@@ -199,17 +202,22 @@ def test_a_plugin_whose_read_blocks_ends_the_session_with_exit_5(models, hrt, tm
 
 def test_sigterm_before_the_stall_is_exit_130(models, hrt, tmp_path):
     plugin = _test_plugin(hrt, "blocking_read")
-    scene = _plugin_scene(models, tmp_path, plugin, "term", duration=30.0)
-    # BLOCK_AFTER_S=5: the plugin reads poses for 5 s; SIGTERM at ~1 s comes first.
-    env = dict(os.environ)
+    # block_after=20: the plugin gives poses for 20 s of session time; SIGTERM comes first,
+    # once the session runs (its trace's .partial exists).
+    scene = _plugin_scene(models, tmp_path, plugin, "term", duration=30.0, config="block_after=20")
     p = subprocess.Popen([hrt, "run", str(scene), "--realtime", "--quiet"], stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True, env=env)
-    time.sleep(1.5)
+                         stderr=subprocess.PIPE, text=True)
+    t0 = time.monotonic()
+    while not (tmp_path / "term-trace.csv.partial").exists():
+        assert p.poll() is None, p.communicate()
+        assert time.monotonic() - t0 < 30
+        time.sleep(0.01)
+    time.sleep(0.5)
     p.send_signal(signal.SIGTERM)
     out, err = p.communicate(timeout=10)
-    assert p.returncode in (130, 5), err
-    if p.returncode == 5:  # the stall came first on a slow start: still one clean line
-        assert_one_clean_line(err)
+    assert p.returncode == 130, err
+    assert "interrupted" in assert_one_clean_line(err)
+    assert (tmp_path / "term-trace.csv").is_file()
 
 
 @pytest.mark.parametrize("size", ["2000", "half", "minus1"])
@@ -408,6 +416,14 @@ def test_messages_are_short_and_printable(models, hrt, tmp_path):
     assert res.returncode == 4
     assert b"\x00" not in res.stderr and b"\x1b" not in res.stderr
     assert b"\\x00" in res.stderr
+    # Bundle errors name their class first, from every command (hrt query, hrt run, hrt check).
+    missing = tmp_path / "nowhere.hbundle"
+    pose = "0 0 0 0 0 0 1".split()
+    res = subprocess.run([hrt, "query", str(missing), str(missing), "--pose-a", *pose, "--pose-b", *pose],
+                         capture_output=True, text=True, timeout=30)
+    assert _failed(res, 3).startswith(f"hrt: error: io: {missing}: ")
+    res = subprocess.run([hrt, "check", str(missing)], capture_output=True, text=True, timeout=30)
+    assert _failed(res, 3).startswith(f"hrt: error: io: {missing}: ")
     # A scene larger than its limit is refused before it is read.
     big = tmp_path / "huge.toml"
     big.write_bytes(b"#" * (2 << 20))

@@ -313,7 +313,8 @@ void run_bench(BenchOptions o) {
                "and runs it)");
   if (o.pose_a.empty()) throw Exit(kUsage, "bench needs --pose-a x y z qx qy qz qw");
   for (int n : o.resolutions)
-    if (n < 8 || n > 4096) throw Exit(kUsage, "--resolutions: each N must be between 8 and 4096");
+    if (n < 8 || n > hrt::kMaxResolution)
+      throw Exit(kUsage, "--resolutions: each N must be between 8 and " + std::to_string(hrt::kMaxResolution));
   for (int k : o.copies)
     if (k < 1 || k > 256) throw Exit(kUsage, "--copies: each count must be between 1 and 256");
   if (o.frames < 1 || o.passes < 1) throw Exit(kUsage, "--frames and --passes must be at least 1");

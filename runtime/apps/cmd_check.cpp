@@ -109,7 +109,7 @@ void register_check(CLI::App& app) {
       }
       // main prints "hrt: error: <class>: <message>" (the class as `hbake
       // validate` prints it) and exits with code 3.
-      throw hrt::BundleError(e.error_class(), std::string(hrt::to_string(e.error_class())) + ": " + e.what());
+      throw;
     }
     const nlohmann::json s = summary_json(model);
     if (opts->json) {

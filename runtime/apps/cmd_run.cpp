@@ -27,6 +27,7 @@
 #include <cmath>
 #include <csignal>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <memory>
 #include <string>
@@ -383,8 +384,18 @@ int run(const RunFlags& f) {
     }
   }
   // The trace is written (what the session did up to the fault); a signal
-  // that came first is the reason the session ended.
-  if (!device_fault.empty() && !interrupted) throw Exit(kDevice, "error: " + device_fault);
+  // that came first is the reason the session ended. The process ends here
+  // with _Exit: a normal exit would run the plugin library's own shutdown
+  // code (its destructors, an SDK's atexit handlers) while its call is still
+  // stuck on the worker thread, and could hang on that very call.
+  if (!device_fault.empty()) {
+    std::fprintf(stderr, "hrt: %s\n",
+                 interrupted ? "interrupted; the device was ramped to zero and the trace written"
+                             : ("error: " + device_fault).c_str());
+    std::fflush(stdout);
+    std::fflush(stderr);
+    std::_Exit(interrupted ? kInterrupted : kDevice);
+  }
   if (trace.truncated())
     std::fprintf(stderr, "hrt: warning: %s: the trace stopped at %llu rows, %llu bytes: [trace] max_bytes (%llu); "
                  "the session ran on\n",

@@ -7,6 +7,7 @@
 #include <string>
 
 #include "commands.h"
+#include "hrt/files.h"
 #include "hrt/model.h"
 
 namespace {
@@ -59,7 +60,9 @@ int main(int argc, char** argv) {
     if (e.what()[0]) std::fprintf(stderr, "hrt: %s\n", e.what());
     return e.code;
   } catch (const hrt::BundleError& e) {
-    std::fprintf(stderr, "hrt: error: %s\n", e.what());
+    // "hrt: error: <class>: <bundle>/<file>: <problem>" from every command
+    // (the class as `hbake validate` names it), one printable line.
+    std::fprintf(stderr, "hrt: error: %s: %s\n", hrt::to_string(e.error_class()), hrt::printable(e.what(), 600).c_str());
     return hrt_cli::kBundle;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "hrt: internal error: %s\n", e.what());

@@ -115,9 +115,11 @@ TEST(Trajectory, EachErrorNamesTheFileAndTheLine) {
   }
   const std::string nofile = "/nonexistent/hrt/none.csv";
   const std::string msg = load_error(nofile);
-  EXPECT_EQ(msg.rfind(nofile + ": cannot read the file: No such file", 0), 0u) << msg;
+  EXPECT_EQ(msg, nofile + ": no such file");
   const std::string dir = std::filesystem::temp_directory_path().string();
-  EXPECT_EQ(load_error(dir).rfind(dir + ": cannot read the file", 0), 0u) << load_error(dir);
+  EXPECT_EQ(load_error(dir), dir + ": is a directory, not a regular file");
+  // A FIFO and a device are named, never opened for reading (which would block or never end).
+  EXPECT_EQ(load_error("/dev/zero"), "/dev/zero: is a character device, not a regular file");
 }
 
 TEST(Trajectory, FromSamplesChecksTheSamples) {

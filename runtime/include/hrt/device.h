@@ -133,8 +133,36 @@ class UdpDevice : public Device {
   DeviceInfo info_;
 };
 
+// Deadlines of the calls into a device plugin (docs/device-plugins.md,
+// "Deadlines"). A call still running at its deadline is a stall: the
+// PluginDevice is faulted for good (fault()). read() and write() get 50
+// periods of the 1 kHz loop: far beyond any working device's call, short
+// enough that the loop notices a stuck one while the user still holds the
+// handle; open() gets the time a device needs to find its hardware and
+// calibrate.
+constexpr int kPluginReadDeadlineMs = 50;
+constexpr int kPluginWriteDeadlineMs = 50;
+constexpr int kPluginCallDeadlineMs = 5000;   // create, info, close, destroy
+constexpr int kPluginOpenDeadlineMs = 30000;  // open (calibration)
+
 // A device from a plugin (hrt/device_plugin.h). `config` is passed to the
 // plugin's create() verbatim (the scene file's device.plugin_config).
+//
+// The file is checked before dlopen (a regular file within kMaxPluginBytes,
+// a 64-bit ELF file of this machine whose headers and segments all lie
+// within the file), so a truncated or foreign file is refused with a
+// DeviceError instead of crashing the loader. A path without a slash names a
+// file in the working directory (dlopen's library search is not used: the
+// file loaded is the file checked).
+//
+// Every call into the plugin runs on one worker thread owned by the device;
+// the caller waits for it with the deadline above. A call that misses it
+// stalls the device for good: fault() names the plugin and the call, read()
+// returns false at once and write() does nothing, the plugin's close() and
+// destroy() are never called, the worker is detached (not joined), the
+// library stays loaded and the device's internal state is leaked (the stuck
+// call may still return into it). A stall in the constructor or open()
+// throws DeviceError with fault()'s line.
 class PluginDevice : public Device {
  public:
   PluginDevice(const std::string& library_path, const std::string& config);
@@ -144,6 +172,9 @@ class PluginDevice : public Device {
   void close() override;
   bool read(double t, DeviceSample& out) noexcept override;
   void write(double t, const Vec6& wrench) noexcept override;
+  // "plugin PATH: read() did not return within 50 ms (stalled); the plugin is
+  // no longer called", or "" while no call stalled.
+  std::string fault() const override;
 
  private:
   struct Impl;

@@ -15,21 +15,45 @@
  * N m. The runtime normalizes the quaternion; a pose with a non-finite value
  * or a zero quaternion counts as "no pose".
  *
- * Threads:
- *   create, destroy, info, open, close: the thread that owns the device
- *     (the main thread of `hrt run`), never concurrently with each other or
- *     with read/write. They may allocate, block (open may take seconds to
- *     find and calibrate a device), print and fail.
- *   read, write: the device thread, once per period each (1 kHz: read, then
- *     write), only between a successful open and close, never concurrently
- *     with each other. They must return within a small part of the period and
- *     must not allocate, lock a mutex another thread may hold, block, sleep,
- *     print or log. A device whose SDK runs its own servo thread (OpenHaptics'
- *     scheduler, DHD's own loop) exchanges data with it without locks
- *     (atomics, a double buffer) -- the runtime's device thread is then the
- *     consumer side.
- *   Every string the runtime passes is valid for the duration of the call
- *   only; strings the plugin returns (name, error messages) are copied at once.
+ * Threads: every call into the plugin runs on one thread the runtime starts
+ * for the device (its worker), one call at a time, never concurrently. The
+ * runtime thread that makes the call waits for it with a deadline (hrt/device.h,
+ * kPlugin*DeadlineMs):
+ *   create, info, close, destroy  5 s: allocate, print, fail, but do not wait
+ *                                 on the hardware for long;
+ *   open                          30 s: find the device, calibrate, enable
+ *                                 forces (the user may be asked to move the
+ *                                 handle);
+ *   read, write                   50 ms each, once per period each (1 kHz:
+ *                                 read, then write), only between a
+ *                                 successful open and close. They must return
+ *                                 within a small part of the period and must
+ *                                 not allocate, lock a mutex another thread
+ *                                 may hold, block, sleep, print or log: the
+ *                                 deadline is a last resort, not a budget. A
+ *                                 device whose SDK runs its own servo thread
+ *                                 (OpenHaptics' scheduler, DHD's own loop)
+ *                                 exchanges data with it without locks
+ *                                 (atomics, a double buffer).
+ * A call still running at its deadline is a stall, and a stall is final: the
+ * runtime never calls the plugin again (not even close or destroy), does not
+ * wait for the stuck call (the worker is abandoned, the library stays
+ * loaded), and the session ends as a device failure (`hrt run` exits 5
+ * naming the plugin and the call). Nothing then reaches the device: its own
+ * watchdog (SDK or firmware) must zero the force when writes stop arriving;
+ * the runtime cannot, for a plugin it can no longer call.
+ *
+ * The entry function and the library's initializers run inside dlopen on the
+ * loading thread, with no deadline: they only return the table and set up
+ * constants; everything else belongs in create.
+ *
+ * Before dlopen the runtime checks the file: a regular file of at most
+ * hrt::kMaxPluginBytes (hrt/files.h), a 64-bit ELF shared library of this
+ * machine whose headers and segments all lie within the file (a truncated
+ * copy would otherwise crash the loader with SIGBUS).
+ *
+ * Every string the runtime passes is valid for the duration of the call
+ * only; strings the plugin returns (name, error messages) are copied at once.
  */
 #ifndef HRT_DEVICE_PLUGIN_H
 #define HRT_DEVICE_PLUGIN_H
@@ -73,25 +97,27 @@ typedef struct hrt_device_plugin {
    * ""). NULL on failure, with a one-line message written into error[0 ..
    * error_size) (NUL-terminated). Does not touch the hardware yet. Required. */
   void* (*create)(const char* config, char* error, size_t error_size);
-  /* Frees the instance (after close). Required. */
+  /* Frees the instance (after close). Required. Not called after a stall. */
   void (*destroy)(void* handle);
   /* Fills *out (see hrt_device_info). 0 on success, nonzero with a message in
    * error on failure. Called after create and again after open (a device may
    * know its model only once opened). Required. */
   int (*info)(void* handle, hrt_device_info* out, char* error, size_t error_size);
   /* Opens and calibrates the device. 0 on success, nonzero with a message on
-   * failure. Optional (NULL: nothing to open). */
+   * failure. Optional (NULL: nothing to open). The one call that may take
+   * long: 30 s deadline. */
   int (*open)(void* handle, char* error, size_t error_size);
-  /* Stops the device's forces and releases it. Optional. */
+  /* Stops the device's forces and releases it. Optional. Not called after a
+   * stall (a stuck call may hold what close needs). */
   void (*close)(void* handle);
   /* The latest handle pose at session time t (s): pose = x, y, z, qx, qy, qz,
    * qw; *buttons one bit per button, *clutch nonzero while the clutch (re-index)
    * button is held. Returns 1 when pose is valid, 0 when the device has no
    * pose (yet; the runtime holds the previous one), negative on a device
-   * fault (also treated as no pose). Device thread. Required. */
+   * fault (also treated as no pose). Device thread, 50 ms deadline. Required. */
   int (*read)(void* handle, double t, double pose[7], uint32_t* buttons, int* clutch);
   /* Displays the wrench fx, fy, fz, tx, ty, tz (already clamped to the limits
-   * and finite). Device thread. Required. */
+   * and finite). Device thread, 50 ms deadline. Required. */
   void (*write)(void* handle, double t, const double wrench[6]);
 } hrt_device_plugin;
 

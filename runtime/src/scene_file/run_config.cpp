@@ -757,7 +757,8 @@ RunConfig load_run_config(const std::string& path) {
 void check_run_limits(RunConfig& c) {
   auto fail = [&](const std::string& key, const std::string& what) { throw SceneFileError(c.file, key, what); };
   // The device loop's ticks in the session (the stop ramp included).
-  const double ticks = std::ceil((c.duration + c.loop.watchdog_ramp) / c.loop.period) + 1.0;
+  // (less 1e-9 of a tick inside the ceil: 0.21 / 0.001 is 210.00000000000003 in double)
+  const double ticks = std::ceil((c.duration + c.loop.watchdog_ramp) / c.loop.period - 1e-9) + 1.0;
   if (!c.trace.device_log.empty()) {
     if (c.log_capacity_set) {
       if (c.loop.log_capacity == 0) fail("loop.log_capacity", "is 0 but a device log is asked for: nothing would be logged");
