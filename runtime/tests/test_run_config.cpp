@@ -983,3 +983,9 @@ TEST_F(RunConfig, NonRegularAndHugeInputsAndRawBytesInMessages) {
     }
   }
 }
+
+// A key with a unit added gets its "did you mean" too.
+TEST_F(RunConfig, KeyWithAUnitSuffixGetsASuggestion) {
+  expect_error(kObjects + "[device]\ntype = \"udp\"\ndisplay_rate_hz = 60\n", "device.display_rate_hz",
+               "unknown key (did you mean \"display_rate\"?)");
+}

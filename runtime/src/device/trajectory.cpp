@@ -111,7 +111,11 @@ void check_and_align(const std::vector<double>& times, std::vector<Pose>& poses,
     if (!std::isfinite(times[i])) throw TrajectoryError(where(i) + ": time is not finite (" + fmt(times[i]) + ")");
     if (!p.position.allFinite()) throw TrajectoryError(where(i) + ": position is not finite");
     if (!p.rotation.coeffs().allFinite()) throw TrajectoryError(where(i) + ": quaternion is not finite");
-    const double norm = p.rotation.norm();
+    // stableNorm: the plain norm of a finite quaternion of 1e300s is inf,
+    // and dividing by it would make a zero quaternion out of it.
+    const double norm = p.rotation.coeffs().stableNorm();
+    if (!std::isfinite(norm))
+      throw TrajectoryError(where(i) + ": quaternion norm is not finite (" + fmt(norm) + ")");
     if (norm < kMinQuaternionNorm)
       throw TrajectoryError(where(i) + ": zero quaternion (norm " + fmt(norm) + "), no rotation");
     p.rotation.coeffs() /= norm;

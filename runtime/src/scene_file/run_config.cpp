@@ -145,6 +145,14 @@ std::string closest(const std::string& word, const std::vector<std::string>& can
     if (d < best_d) best_d = d, best = c;
   }
   if (best_d <= 2 && 2 * best_d < std::max(word.size(), best.size())) return best;
+  // A key with a unit or a word added or left out ("display_rate_hz" for
+  // "display_rate", "max_force_n"): one is the other plus "_..." .
+  for (const std::string& c : candidates) {
+    const std::string& shorter = c.size() < word.size() ? c : word;
+    const std::string& longer = c.size() < word.size() ? word : c;
+    if (shorter.size() >= 4 && longer.compare(0, shorter.size(), shorter) == 0 && longer[shorter.size()] == '_')
+      return c;
+  }
   return "";
 }
 
@@ -384,7 +392,12 @@ class Section {
 
 void check_parent_folder(const Section& s, const std::string& k, const std::string& path) {
   const fs::path parent = fs::path(path).parent_path();
-  if (!parent.empty() && !fs::is_directory(parent)) s.fail(k, "the folder " + parent.string() + " does not exist");
+  // The error_code form: a name too long for the file system (ENAMETOOLONG)
+  // is "does not exist" here, not an exception out of the reader.
+  std::error_code ec;
+  if (!parent.empty() && !fs::is_directory(parent, ec))
+    s.fail(k, "the folder " + printable(parent.string(), 200) + " does not exist" +
+                  (ec && ec != std::errc::no_such_file_or_directory ? " (" + ec.message() + ")" : ""));
 }
 
 
@@ -579,7 +592,10 @@ RunConfig load_run_config(const std::string& path) {
         if (c.objects[j].name == o.name) s.fail("name", quote_value(o.name) + " is also the name of object[" + std::to_string(j) + "]");
       const auto bundle = s.path("bundle");
       if (!bundle) s.missing("bundle", "every object needs the path of its bundle (a *.hbundle folder)");
-      if (!fs::is_directory(*bundle)) s.fail("bundle", "no bundle folder at " + *bundle);
+      std::error_code ec;
+      if (!fs::is_directory(*bundle, ec))
+        s.fail("bundle", "no bundle folder at " + printable(*bundle, 200) +
+                             (ec && ec != std::errc::no_such_file_or_directory ? " (" + ec.message() + ")" : ""));
       o.bundle = *bundle;
       o.pose.position = s.position("position");
       o.pose.rotation = s.quaternion("orientation");
