@@ -19,7 +19,7 @@ SEEDS=${2:-"0 1 2 3"}
 HBAKE=${HBAKE:-.venv/bin/hbake}
 HRT=${HRT:-.venv/bin/hrt}
 SAMPLES=${SAMPLES:-2000}
-SHARED=../shared/models
+SHARED=${HBAKE_MODELS:-../shared/models}  # the shared models: $HBAKE_MODELS, else beside the repository
 mkdir -p "$OUT"
 
 inputs=()

@@ -67,7 +67,18 @@ BENCH_METHODS = ("cage", "preserve", "pp", "auto", "both")
 _EXIT_UNREACHABLE = 9
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-SHARED_DIR = REPO_ROOT.parent / "shared" / "models"
+#: The environment variable naming the shared models' folder (README, "Shared models").
+MODELS_ENV = "HBAKE_MODELS"
+
+
+def shared_models_dir() -> Path:
+    """The shared models' folder: ``$HBAKE_MODELS``, else ``../shared/models`` beside the
+    repository (the layout of the project's own machines)."""
+    env = os.environ.get(MODELS_ENV)
+    return Path(env) if env else REPO_ROOT.parent / "shared" / "models"
+
+
+SHARED_DIR = shared_models_dir()
 
 
 class BenchFailed(RuntimeError):
@@ -202,18 +213,28 @@ def _bake_in_child(input_path: Path, output_path: Path, overrides: dict) -> tupl
 # The benchmark
 # --------------------------------------------------------------------------
 
-def default_models(work_dir: Path, log=print) -> list[tuple[str, Path, str]]:
-    """(name, path, unit) of the shared models present plus the generated CAD part."""
-    models = []
-    if SHARED_DIR.is_dir():
-        for name, unit in SHARED_MODELS.items():
-            path = SHARED_DIR / name
-            if path.is_file():
-                models.append((name, path, unit))
-            else:
-                log(f"bench: skipping {name}: not in {SHARED_DIR}")
-    else:
-        log(f"bench: skipping the shared models: {SHARED_DIR} not found")
+def default_models(work_dir: Path, log=print, models_dir: Path | None = None,
+                   allow_missing: bool = False) -> list[tuple[str, Path, str]]:
+    """(name, path, unit) of the shared models plus the generated CAD part.
+
+    A missing folder or model is an error (FileNotFoundError naming the folder and how to
+    point at it), not a silent skip, unless ``allow_missing``: a table without the shared
+    models would look complete."""
+    shared = Path(models_dir) if models_dir is not None else shared_models_dir()
+    models, missing = [], []
+    for name, unit in SHARED_MODELS.items():
+        path = shared / name
+        if path.is_file():
+            models.append((name, path, unit))
+        else:
+            missing.append(name)
+    if missing:
+        what = (f"the shared models folder {shared} does not exist" if not shared.is_dir()
+                else f"{shared} lacks {', '.join(missing)}")
+        if not allow_missing:
+            raise FileNotFoundError(f"{what}; set {MODELS_ENV} (or --models-dir) to the folder "
+                                    f"of the shared models, or pass --skip-missing")
+        log(f"bench: warning: {what}: the table leaves them out (--skip-missing)")
     cad = work_dir / "cad_part.ply"
     if not cad.exists():
         # In a child process: Linux carries a process's peak RSS across fork and exec,
@@ -290,11 +311,13 @@ def run_bench(models: Sequence[str | os.PathLike] | None = None,
               json_path: str | os.PathLike | None = None,
               repeat: int = 1,
               overrides: dict | None = None,
-              log=print) -> list[BenchRow]:
+              log=print, models_dir: str | os.PathLike | None = None,
+              allow_missing: bool = False) -> list[BenchRow]:
     """Bake each model in a fresh process and print the table.
 
     ``models``: mesh files (baked in meters unless listed in ``SHARED_MODELS``),
-    default: the shared models present and the generated CAD part. ``out_dir``:
+    default: the shared models (in ``models_dir``, default :func:`shared_models_dir`; a
+    missing one is an error unless ``allow_missing``) and the generated CAD part. ``out_dir``:
     where the bundles (and the generated part) go, default a temporary
     directory removed afterwards. ``json_path``: also write the rows and the
     machine as JSON. ``overrides``: settings overrides (dotted keys) for every bake.
@@ -310,7 +333,7 @@ def run_bench(models: Sequence[str | os.PathLike] | None = None,
         work.mkdir(parents=True, exist_ok=True)
     try:
         if models is None:
-            todo = default_models(work, log)
+            todo = default_models(work, log, models_dir, allow_missing)
         else:
             todo = []
             for m in models:
@@ -387,7 +410,12 @@ def run_bench(models: Sequence[str | os.PathLike] | None = None,
               help="baking route of every bake [default: the settings' (cage)]; 'both' bakes "
                    "each model by the cage and the preserve route, rows side by side (a "
                    "preserve bake that cannot reach its target is listed, not failed)")
-def bench_command(models, out_dir, json_path, repeat, sets, method):
+@click.option("--models-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              envvar=MODELS_ENV, show_envvar=True,
+              help="folder of the shared models [default: ../shared/models beside the repository]")
+@click.option("--skip-missing", is_flag=True,
+              help="leave missing shared models out of the table with a warning instead of failing")
+def bench_command(models, out_dir, json_path, repeat, sets, method, models_dir, skip_missing):
     """Bake the shared models and the generated 650k-triangle CAD part; print a table.
 
     MODELS: mesh files to bake instead (in meters unless the file name is one of
@@ -405,7 +433,7 @@ def bench_command(models, out_dir, json_path, repeat, sets, method):
         overrides["method"] = method
     try:
         run_bench(list(models) or None, out_dir, json_path, repeat, overrides,
-                  log=lambda msg: click.echo(msg))
+                  log=lambda msg: click.echo(msg), models_dir=models_dir, allow_missing=skip_missing)
     except (RuntimeError, FileNotFoundError) as exc:
         click.echo(f"hbake bench: error: {exc}", err=True)
         sys.exit(1)

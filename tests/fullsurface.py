@@ -61,7 +61,8 @@ from scipy.spatial.transform import Rotation
 from hbake import procedural as P
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_MODELS = REPO.parent / "shared" / "models"
+# $HBAKE_MODELS, else ../shared/models beside the repository (hbake.bench.shared_models_dir).
+SHARED_MODELS = Path(os.environ["HBAKE_MODELS"]) if os.environ.get("HBAKE_MODELS") else REPO.parent / "shared" / "models"
 
 RESOLUTIONS = (50, 128)
 #: e = LATERAL_TOLERANCE * min(window cell, atlas texel): the tolerance to which the

@@ -241,11 +241,11 @@ def test_cad_texture(meshes):
 from pathlib import Path  # noqa: E402
 
 from hbake import bake  # noqa: E402
-from hbake.bench import SHARED_MODELS, SHARED_OVERRIDES  # noqa: E402
+from hbake.bench import SHARED_MODELS, SHARED_OVERRIDES, shared_models_dir  # noqa: E402
 from hbake.bundle import atlas_lookup, read_bundle, validate_bundle  # noqa: E402
 from hbake.settings import BakeSettings  # noqa: E402
 
-SHARED_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "models"
+SHARED_DIR = shared_models_dir()  # $HBAKE_MODELS, else ../shared/models beside the repository
 
 #: Issue 2: on the procedural models both directions of the reconstruction error
 #: have p95 below half a texel. Why half a texel: the atlas samples the surface

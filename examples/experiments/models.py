@@ -23,13 +23,15 @@ deterministic).
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-SHARED = REPO.parent / "shared" / "models"
+# The shared models' folder: $HBAKE_MODELS, else ../shared/models beside the repository.
+SHARED = Path(os.environ["HBAKE_MODELS"]) if os.environ.get("HBAKE_MODELS") else REPO.parent / "shared" / "models"
 HBAKE = str(REPO / ".venv" / "bin" / "hbake")
 
 #: name -> (how the full mesh is made, --units of the bake, the paper's Table 1 row:
@@ -59,7 +61,8 @@ def make(name: str, out: Path) -> Path:
         cmd = [HBAKE, *how, str(mesh)]
     else:
         if not Path(how[1]).is_file():
-            sys.exit(f"models.py: {how[1]} is missing (the shared models folder beside the repository)")
+            sys.exit(f"models.py: {how[1]} is missing: set HBAKE_MODELS to the folder of the shared models "
+                     f"(default: ../shared/models beside the repository)")
         cmd = [HBAKE, how[0], how[1], "-o", str(mesh), "-f", "-q", *how[2:]]
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
     return mesh
