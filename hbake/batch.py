@@ -483,6 +483,10 @@ def run_batch(jobs: list[Job], executor, *, log: Callable[[str], None] = lambda 
             log(f"[{done}/{n}] baked   {res['name']} in {res['seconds']:.1f} s, "
                 f"peak RSS {res['peak_rss_bytes'] / 2**20:,.0f} MiB"
                 + (f" (attempt {res['attempts']})" if res.get("attempts", 1) > 1 else ""))
+            # Each model's warnings, as `hbake bake` prints them: a part with no unit
+            # (baked in meters: 1000x too large if it was in mm) must not pass unseen.
+            for w in ((res.get("report") or {}).get("manifest") or {}).get("warnings", []):
+                log(f"        warning {res['name']}: {w}")
         else:
             log(f"[{done}/{n}] FAILED  {res['name']}: {res['error_class']}: {res['error']}")
 

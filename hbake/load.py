@@ -138,8 +138,10 @@ def load_mesh(path: str | os.PathLike, settings: LoadSettings | None = None,
     nboundary = boundary_edge_count(faces)
     repair["flipped_bodies"] = flipped
 
+    # Merging duplicate vertices is routine, not a warning: an STL stores every
+    # triangle's corners apart, so every STL bake would print it and hide the warnings
+    # that matter (no unit, not closed). The count stays in the manifest's repair record.
     changes = [f"{repair[k]} {txt}" for k, txt in (
-        ("merged_vertices", "duplicate vertices merged"),
         ("degenerate_faces", "degenerate faces dropped"),
         ("duplicate_faces", "duplicate faces dropped"),
         ("unreferenced_vertices", "unreferenced vertices dropped"),

@@ -114,6 +114,11 @@ def test_batch_bakes_good_models_and_reports_the_bad_one(first_batch, models):
     # The report file is the --json output; progress and the summary went to stderr.
     assert json.loads((out / "hbake-batch.json").read_text()) == report
     assert "[3/3]" in proc.stderr and "1 failed of 3" in proc.stderr
+    # Each model's warnings are printed (a PLY records no unit: baked as meters, which a
+    # part drawn in mm would be 1000x too large for) and listed in the report.
+    for name in ("a.ply", "b.ply"):
+        assert any("records no unit" in w for w in m[name]["bake"]["warnings"]), m[name]["bake"]["warnings"]
+        assert f"warning {name}: {name} records no unit" in proc.stderr, proc.stderr
 
 
 def test_batch_skips_what_is_up_to_date_and_rebakes_what_changed(first_batch, models, low_config,
@@ -433,3 +438,17 @@ def test_batch_sigterm_stops_and_leaves_nothing_half_written(models, low_config,
         time.sleep(0.2)
     assert list(out.iterdir()) == [], list(out.iterdir())
     assert not any(b.is_running() and b.status() != psutil.STATUS_ZOMBIE for b in bakes)
+
+
+def test_merging_an_stl_s_duplicate_vertices_is_no_warning(tmp_path):
+    """An STL stores every triangle's corners apart: merging them is routine and stays in the
+    manifest's repair record, out of the warnings (it hid the ones that matter)."""
+    src = tmp_path / "blob.stl"
+    trimesh.load(blob(tmp_path / "blob.ply"), process=False).export(src)
+    out = tmp_path / "blob.hbundle"
+    r = run(["bake", src, "-o", out, "--units", "m", "--target-faces", "60"])
+    assert r.returncode == 0, r.stderr
+    assert "duplicate vertices" not in r.stderr, r.stderr
+    m = json.loads((out / "manifest.json").read_text())
+    assert not any("duplicate vertices" in w for w in m["warnings"])
+    assert m["source"]["repair"]["merged_vertices"] > 0
