@@ -31,24 +31,29 @@ apt:
 
 $(VENV)/.stamp: pyproject.toml
 	python3 -m venv $(VENV)
-	$(VENV)/bin/pip install -q --upgrade pip
+	$(VENV)/bin/pip install -q --upgrade pip "setuptools>=77" wheel
 	$(VENV)/bin/pip install -q -e '.[test]'
 	touch $@
 
 venv: $(VENV)/.stamp
 
+# The runtime and the example plugin only: the C++ test suite (about 40 % of
+# what the project compiles) is built by `make test` (test-cpp).
 runtime: apt
 	cmake -S runtime -B $(BUILD) -DCMAKE_BUILD_TYPE=Release >/dev/null
-	cmake --build $(BUILD) -j $(JOBS)
+	cmake --build $(BUILD) -j $(JOBS) --target hrt hrt_example_device
 	@mkdir -p $(VENV)/bin
 	ln -sf ../../$(BUILD)/hrt $(VENV)/bin/hrt
 
 test: setup test-cpp test-py test-fuzz
 
 test-cpp:
+	cmake --build $(BUILD) -j $(JOBS)
 	cd $(BUILD) && ctest --output-on-failure -j $(JOBS)
 
+# The pytest suite drives the test plugins (runtime/tests/plugins) through `hrt run`.
 test-py:
+	cmake --build $(BUILD) -j $(JOBS) --target hrt_test_plugins
 	$(PY) -m pytest -q
 
 demo: setup
@@ -61,37 +66,45 @@ bench: setup
 clean:
 	rm -rf build out
 
-# --- libFuzzer target runtime/fuzz (runtime/fuzz/README.md) ---------------
+# --- libFuzzer targets runtime/fuzz (runtime/fuzz/README.md) --------------
 # Its own build directory, clang with ASan + UBSan + libFuzzer instrumentation
 # (the gcc build in $(BUILD) is untouched). test-fuzz: a deterministic run
-# (fixed seed and count) over a copy of the seed corpus; any crash, sanitizer
-# report, timeout or OOM fails it. fuzz-long: hours of it (HOURS=, FUZZ_JOBS=),
-# with a persistent corpus outside the repository (FUZZ_DIR=).
+# (fixed seed and count) of each target (bundles, UDP packets, scene files and
+# trajectories) over a copy of its seed corpus; any crash, sanitizer report,
+# timeout or OOM fails it. fuzz-long / fuzz-long-scene: hours of the bundle /
+# scene target (HOURS=, FUZZ_JOBS=), with a persistent corpus outside the
+# repository (FUZZ_DIR=).
 FUZZ_BUILD := build/fuzz
 FUZZ_BIN   := $(FUZZ_BUILD)/fuzz/hrt_fuzz_bundle
 FUZZ_RUNS  ?= 40000
 FUZZ_UDP_BIN  := $(FUZZ_BUILD)/fuzz/hrt_fuzz_udp
 FUZZ_UDP_RUNS ?= 1000000
 FUZZ_UDP_OPTS := -max_len=65536 -timeout=10 -rss_limit_mb=1024 -dict=$(CURDIR)/runtime/fuzz/udp.dict -print_final_stats=1
+FUZZ_SCENE_BIN  := $(FUZZ_BUILD)/fuzz/hrt_fuzz_scene
+FUZZ_SCENE_RUNS ?= 300000
+FUZZ_SCENE_OPTS := -max_len=32768 -timeout=10 -rss_limit_mb=1024 -dict=$(CURDIR)/runtime/fuzz/scene.dict -print_final_stats=1
 FUZZ_OPTS  := -max_len=131072 -timeout=10 -rss_limit_mb=2048 -dict=$(CURDIR)/runtime/fuzz/bundle.dict -print_final_stats=1
 HOURS      ?= 1
 FUZZ_JOBS  ?= $(JOBS)
 FUZZ_DIR   ?= $(HOME)/.cache/hrt-fuzz
 
-.PHONY: fuzz-build test-fuzz fuzz-long
+.PHONY: fuzz-build test-fuzz fuzz-long fuzz-long-scene
 
 fuzz-build: apt
 	cmake -S runtime -B $(FUZZ_BUILD) -DCMAKE_CXX_COMPILER=clang++ -DHRT_FUZZ=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
-	cmake --build $(FUZZ_BUILD) -j $(JOBS) --target hrt_fuzz_bundle hrt_fuzz_udp
+	cmake --build $(FUZZ_BUILD) -j $(JOBS) --target hrt_fuzz_bundle hrt_fuzz_udp hrt_fuzz_scene
 
 test-fuzz: fuzz-build
 	rm -rf $(FUZZ_BUILD)/ci && mkdir -p $(FUZZ_BUILD)/ci/artifacts
 	cp -r $(FUZZ_BUILD)/fuzz/seed_corpus $(FUZZ_BUILD)/ci/corpus
-	find runtime/fuzz/regressions -name '*.bin' ! -name 'udp-*' -exec cp {} $(FUZZ_BUILD)/ci/corpus/ \;
+	find runtime/fuzz/regressions -name '*.bin' ! -name 'udp-*' ! -name 'scene-*' -exec cp {} $(FUZZ_BUILD)/ci/corpus/ \;
 	$(FUZZ_BIN) -seed=1 -runs=$(FUZZ_RUNS) $(FUZZ_OPTS) -artifact_prefix=$(CURDIR)/$(FUZZ_BUILD)/ci/artifacts/ $(FUZZ_BUILD)/ci/corpus
 	cp -r $(FUZZ_BUILD)/fuzz/udp_seed_corpus $(FUZZ_BUILD)/ci/udp_corpus
 	find runtime/fuzz/regressions -name 'udp-*.bin' -exec cp {} $(FUZZ_BUILD)/ci/udp_corpus/ \;
 	$(FUZZ_UDP_BIN) -seed=1 -runs=$(FUZZ_UDP_RUNS) $(FUZZ_UDP_OPTS) -artifact_prefix=$(CURDIR)/$(FUZZ_BUILD)/ci/artifacts/udp- $(FUZZ_BUILD)/ci/udp_corpus
+	cp -r $(FUZZ_BUILD)/fuzz/scene_seed_corpus $(FUZZ_BUILD)/ci/scene_corpus
+	find runtime/fuzz/regressions -name 'scene-*.bin' -exec cp {} $(FUZZ_BUILD)/ci/scene_corpus/ \;
+	$(FUZZ_SCENE_BIN) -seed=1 -runs=$(FUZZ_SCENE_RUNS) $(FUZZ_SCENE_OPTS) -artifact_prefix=$(CURDIR)/$(FUZZ_BUILD)/ci/artifacts/scene- $(FUZZ_BUILD)/ci/scene_corpus
 
 # FUZZ_JOBS workers for HOURS each (a worker stops at its first finding; its
 # log is $(FUZZ_DIR)/fuzz-N.log, findings in $(FUZZ_DIR)/artifacts).
@@ -100,3 +113,11 @@ fuzz-long: fuzz-build
 	cd $(FUZZ_DIR) && $(CURDIR)/$(FUZZ_BIN) -max_total_time=$$(awk 'BEGIN{print int($(HOURS)*3600)}') \
 	  -jobs=$(FUZZ_JOBS) -workers=$(FUZZ_JOBS) $(FUZZ_OPTS) -artifact_prefix=$(FUZZ_DIR)/artifacts/ \
 	  $(FUZZ_DIR)/corpus $(CURDIR)/$(FUZZ_BUILD)/fuzz/seed_corpus
+
+# The same for hrt_fuzz_scene (scene files and trajectories): corpus and logs
+# in $(FUZZ_DIR)/scene.
+fuzz-long-scene: fuzz-build
+	mkdir -p $(FUZZ_DIR)/scene/corpus $(FUZZ_DIR)/scene/artifacts
+	cd $(FUZZ_DIR)/scene && $(CURDIR)/$(FUZZ_SCENE_BIN) -max_total_time=$$(awk 'BEGIN{print int($(HOURS)*3600)}') \
+	  -jobs=$(FUZZ_JOBS) -workers=$(FUZZ_JOBS) $(FUZZ_SCENE_OPTS) -artifact_prefix=$(FUZZ_DIR)/scene/artifacts/ \
+	  $(FUZZ_DIR)/scene/corpus $(CURDIR)/$(FUZZ_BUILD)/fuzz/scene_seed_corpus

@@ -989,3 +989,8 @@ TEST_F(RunConfig, KeyWithAUnitSuffixGetsASuggestion) {
   expect_error(kObjects + "[device]\ntype = \"udp\"\ndisplay_rate_hz = 60\n", "device.display_rate_hz",
                "unknown key (did you mean \"display_rate\"?)");
 }
+
+// A NUL inside a path (TOML's \u0000) would make the system open a shorter path than the one named.
+TEST_F(RunConfig, PathsWithANulAreRefused) {
+  expect_error(minimal("[trace]\npath = \"out/a\\u0000b.csv\"\n"), "trace.path", "NUL");
+}

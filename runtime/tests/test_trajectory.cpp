@@ -105,6 +105,8 @@ TEST(Trajectory, EachErrorNamesTheFileAndTheLine) {
       {"zeroq.csv", h + ok + "\n1,0,0,0,0,0,0,0\n", "line 4", "zero quaternion"},
       {"back.csv", h + ok + "1,0,0,0,0,0,0,1\n1,0,0,0,0,0,0,1\n", "line 4", "time 1 is not after"},
       {"down.csv", h + "2,0,0,0,0,0,0,1\n1,0,0,0,0,0,0,1\n", "line 3", "not after the previous sample's 2"},
+      {"far.csv", h + ok + "1,-1e308,0,0,0,0,0,1\n", "line 3", "more than 10000 m from the origin"},
+      {"nul.csv", h + std::string("0,0,0,0\0,0,0,0,1\n", 19), "line 2", "'0\\x00' is not a number"},
   };
   for (const Case& c : cases) {
     const std::string path = write_file(c.name, c.text);
@@ -113,6 +115,11 @@ TEST(Trajectory, EachErrorNamesTheFileAndTheLine) {
     EXPECT_NE(msg.find(c.what), std::string::npos) << c.name << ": " << msg;
     EXPECT_EQ(msg.find('\n'), std::string::npos) << c.name << ": one line: " << msg;
   }
+  // A quaternion whose plain norm overflows (the fuzzer's find: dividing by an infinite
+  // norm made it a zero quaternion) is a rotation like any other, normalized.
+  const hrt::Trajectory big = hrt::Trajectory::load_csv(write_file("bigq.csv", h + "0,0,0,0,0,0,1e300,1\n"));
+  EXPECT_NEAR(big.poses()[0].rotation.norm(), 1.0, 1e-15);
+  EXPECT_NEAR(std::abs(big.poses()[0].rotation.z()), 1.0, 1e-15);
   const std::string nofile = "/nonexistent/hrt/none.csv";
   const std::string msg = load_error(nofile);
   EXPECT_EQ(msg, nofile + ": no such file");

@@ -25,6 +25,9 @@ namespace hrt {
 // most kMaxTrajectoryBytes (hrt/files.h).
 constexpr size_t kMaxTrajectorySamples = 2'000'000;
 constexpr size_t kMaxTrajectoryLine = 65536;
+// Positions within this many metres of the origin along each axis (as a
+// scene's and `hrt query --pose`'s).
+constexpr double kMaxTrajectoryPosition = 1e4;
 
 struct TrajectoryError : std::runtime_error {
   using std::runtime_error::runtime_error;  // "FILE: line L: what"

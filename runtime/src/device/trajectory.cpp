@@ -110,6 +110,11 @@ void check_and_align(const std::vector<double>& times, std::vector<Pose>& poses,
     Pose& p = poses[i];
     if (!std::isfinite(times[i])) throw TrajectoryError(where(i) + ": time is not finite (" + fmt(times[i]) + ")");
     if (!p.position.allFinite()) throw TrajectoryError(where(i) + ": position is not finite");
+    // As a scene's positions: parts of at most metres, in metres; past 1e4 m the
+    // contact computations lose all precision and velocities overflow.
+    if (!(p.position.cwiseAbs().maxCoeff() <= kMaxTrajectoryPosition))
+      throw TrajectoryError(where(i) + ": position is more than " + fmt(kMaxTrajectoryPosition) +
+                            " m from the origin along an axis (meters, not mm?)");
     if (!p.rotation.coeffs().allFinite()) throw TrajectoryError(where(i) + ": quaternion is not finite");
     // stableNorm: the plain norm of a finite quaternion of 1e300s is inf,
     // and dividing by it would make a zero quaternion out of it.

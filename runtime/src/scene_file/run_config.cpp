@@ -305,6 +305,9 @@ class Section {
     const auto s = string(k);
     if (!s) return std::nullopt;
     if (s->empty()) fail(k, "empty path (leave the key out instead)");
+    // TOML allows "\u0000"; the operating system would cut the path there and
+    // open another file than the one the message names.
+    if (s->find('\0') != std::string::npos) fail(k, "a path must not contain a NUL character");
     return ctx_.resolve(*s);
   }
   // A path to a regular file of at most max_bytes (hrt/files.h: a FIFO or
