@@ -38,7 +38,8 @@ from typing import Any, Callable
 
 from hbake import __version__
 from hbake.constants import SUPPORTED_EXTENSIONS
-from hbake.fileio import write_json_atomic
+from hbake.fileio import (FileTooLargeError, NotRegularFileError, check_regular, read_regular,
+                          write_json_atomic)
 from hbake.errors import (EXIT_BAKE_FAILED, EXIT_CONFIG, EXIT_INPUT_INVALID, EXIT_INPUT_MISSING,
                           EXIT_INTERRUPTED, EXIT_OUTPUT_EXISTS, EXIT_OUTPUT_UNWRITABLE,
                           EXIT_USAGE, ConfigError, HbakeError, InputMissingError)
@@ -122,11 +123,17 @@ def load_batch_config(path: str | os.PathLike | None) -> BatchConfig:
     """Read and check a batch config; every error is a ConfigError naming the file."""
     if path is None:
         return BatchConfig()
+    from hbake.settings import MAX_CONFIG_BYTES
+
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        # The reader of every hbake input: a regular file (a FIFO would block, /dev/zero
+        # never end) within the config size limit, checked before it is read.
+        data = tomllib.loads(read_regular(path, MAX_CONFIG_BYTES).decode("utf-8"))
     except FileNotFoundError:
         raise ConfigError(f"{path}: batch config not found") from None
+    except (NotRegularFileError, FileTooLargeError, IsADirectoryError) as exc:
+        raise ConfigError(f"{path}: cannot read the batch config: {exc.strerror}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read the batch config: "
                           f"{getattr(exc, 'strerror', None) or exc}") from None
@@ -170,14 +177,19 @@ def _base_settings(cfg: BatchConfig):
 # --------------------------------------------------------------------------
 
 def discover(inputs: list[Path]) -> list[Path]:
-    """Mesh files of the inputs: a directory gives its files with a supported extension
-    (not recursive, sorted by name), a file is taken as it is."""
+    """Mesh files of the inputs: a directory gives its entries with a supported extension
+    (not recursive, sorted by name), a file is taken as it is.
+
+    An entry with a mesh extension that is not a regular file (a FIFO, a link to a device,
+    a dangling link, a folder) is kept: its bake fails with one line naming what it is, and
+    the report lists it, instead of the model vanishing from the batch unseen. A dangling
+    link named on the command line is kept the same way; a path that is nothing at all is
+    a typo and stops the batch."""
     found: list[Path] = []
     for item in inputs:
         if item.is_dir():
-            found.extend(sorted(p for p in item.iterdir()
-                                if p.is_file() and p.suffix.lower() in SUPPORTED_EXTENSIONS))
-        elif item.exists():
+            found.extend(sorted(p for p in item.iterdir() if p.suffix.lower() in SUPPORTED_EXTENSIONS))
+        elif item.exists() or item.is_symlink():
             found.append(item)
         else:
             raise InputMissingError(f"{item}: no such file or directory")
@@ -189,7 +201,9 @@ def count_triangles(path: Path) -> int:
     memory estimate needs it before the bake. Polygons count once; unknown layouts
     fall back to 50 bytes per triangle."""
     try:
-        size = path.stat().st_size
+        # Regular files only: opening a FIFO would block the whole batch here (its bake
+        # then fails with one line naming what it is).
+        size = check_regular(path).st_size
         ext = path.suffix.lower()
         with open(path, "rb") as fh:
             head = fh.read(4096)
@@ -215,6 +229,14 @@ def count_triangles(path: Path) -> int:
     except (OSError, ValueError, IndexError):
         pass
     return max(1, size // 50) if "size" in locals() else 1
+
+
+def _is_regular(path: Path) -> bool:
+    try:
+        check_regular(path)
+        return True
+    except OSError:
+        return False
 
 
 def sha256_file(path: Path) -> str:
@@ -315,7 +337,7 @@ def plan(inputs: list[Path], out_dir: Path, cfg: BatchConfig, *, rebuild: bool =
                   triangles=tris, estimated_rss=RSS_BASE_BYTES + RSS_PER_TRIANGLE_BYTES * tris)
         if rebuild:
             job.reason = "--rebuild"
-        elif f.is_file():
+        elif _is_regular(f):
             job.skip, job.reason = up_to_date(out, sha256_file(f), settings.to_dict(), libraries)
         jobs.append(job)
     return jobs

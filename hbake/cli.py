@@ -25,7 +25,34 @@ EXIT_INTERNAL = 1
 CONTEXT = {"help_option_names": ["-h", "--help"], "max_content_width": 100}
 
 
-@click.group(context_settings=CONTEXT)
+class _OneLineErrors(click.Group):
+    """click's usage errors as one line, ``hbake: error: <problem>; see hbake CMD --help``
+    (exit 2), like every other hbake error: click's three lines (Usage, Try, Error) are
+    hard to read in a batch log and break the one-line rule scripts rely on."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode, **extra)
+        try:
+            rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.exceptions.UsageError as exc:
+            if type(exc).__name__ == "NoArgsIsHelpError":   # plain `hbake`: the help, as is
+                print(exc.format_message(), file=sys.stderr, flush=True)
+                sys.exit(exc.exit_code)
+            where = exc.ctx.command_path if exc.ctx is not None else "hbake"
+            msg = " ".join(exc.format_message().split()).rstrip(".")
+            print(f"hbake: error: {msg}; see {where} --help", file=sys.stderr, flush=True)
+            sys.exit(exc.exit_code)
+        except click.exceptions.ClickException as exc:
+            print(f"hbake: error: {' '.join(exc.format_message().split())}", file=sys.stderr, flush=True)
+            sys.exit(exc.exit_code)
+        except click.exceptions.Abort:
+            print("hbake: interrupted", file=sys.stderr, flush=True)
+            sys.exit(130)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+
+@click.group(context_settings=CONTEXT, cls=_OneLineErrors)
 @click.version_option(__version__, prog_name="hbake")
 def main() -> None:
     """Bake high-resolution meshes into haptic bundles (coarse mesh, haptic texture,
@@ -141,9 +168,14 @@ def _bake_here(input, output, settings, report, force, quiet, as_json=False) -> 
     except HbakeError as exc:
         if progress is not None:
             progress.close()
-        click.echo(f"hbake: error: {exc}", err=True)
+        # Every error names the file it is about: a stage deep in the bake (a convex hull
+        # that fails) does not know the input's name, so it is added here.
+        msg = str(exc)
+        if Path(input).name not in msg and str(output) not in msg:
+            msg = f"{input}: {msg}"
+        click.echo(f"hbake: error: {msg}", err=True)
         if as_json:
-            _echo_json_error(exc.exit_code, str(exc))
+            _echo_json_error(exc.exit_code, msg)
         return exc.exit_code
     except KeyboardInterrupt:
         if progress is not None:

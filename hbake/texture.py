@@ -217,11 +217,21 @@ def _vee(t: np.ndarray) -> np.ndarray:
 def _image_height(path: Path, u: np.ndarray, v: np.ndarray, L: float) -> np.ndarray:
     from PIL import Image, UnidentifiedImageError
 
+    import io
+
+    from hbake.constants import MAX_INPUT_BYTES
+    from hbake.fileio import FileTooLargeError, NotRegularFileError, read_regular
+
     try:
-        with Image.open(path) as im:
+        # hbake's one input reader: a regular file within the input limit (Pillow would
+        # block on a FIFO and read /dev/zero until memory runs out).
+        data = read_regular(path, MAX_INPUT_BYTES)
+        with Image.open(io.BytesIO(data)) as im:
             g = np.asarray(im.convert("F"), dtype=np.float64)
     except FileNotFoundError:
         raise InputMissingError(f"{path}: no such image file") from None
+    except (NotRegularFileError, FileTooLargeError, IsADirectoryError) as exc:
+        raise InputMissingError(f"{path}: {exc.strerror}") from None
     except (UnidentifiedImageError, OSError, ValueError) as exc:
         raise InputInvalidError(f"{path}: not a readable image ({exc})") from None
     hgt, wid = g.shape
@@ -467,6 +477,11 @@ def texture_mesh(vertices: np.ndarray, faces: np.ndarray, s: TextureSettings,
     if not inside.any():
         raise TextureParameterError(f"{source}: --region {s.region.describe()}: no face of the mesh is in it")
     size = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+    # A wavelength longer than the part leaves less than one period on it: next to no
+    # relief (1e308 gave a mesh with none at all and exit 0).
+    if s.wavelength > size:
+        raise TextureParameterError(f"{source}: --wavelength {s.wavelength:g} is longer than the part "
+                                    f"({size:.4g} along its bounding-box diagonal): no relief would be made")
     if s.amplitude >= 0.25 * size:
         raise TextureParameterError(f"{source}: --amplitude {s.amplitude:g} is a quarter of the part's size "
                                     f"({size:.4g}) or more: not a surface texture")
@@ -595,12 +610,20 @@ def _vec3(ctx, param, value):
     return v
 
 
+def _check_pattern(ctx, param, value):
+    # A pattern that is no pattern is a usage error (exit 2) before anything is read,
+    # not a parameter the texture "cannot honour" (exit 20).
+    if value is not None and value not in PATTERNS and not (value.startswith("image:") and len(value) > 6):
+        raise click.BadParameter(f"{value!r}: one of {', '.join(PATTERNS)}, image:FILE")
+    return value
+
+
 @click.command("texture", context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.argument("input", type=click.Path(path_type=Path, dir_okay=True, readable=False))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="Mesh file to write (.ply, .obj, .stl, .off), in the input's units.")
 @click.option("--pattern", required=True, metavar="ridges|grooves|knurl|bumps|noise|image:FILE",
-              help="The relief (see hbake/texture.py for each formula).")
+              callback=_check_pattern, help="The relief (see hbake/texture.py for each formula).")
 @click.option("--amplitude", type=float, required=True,
               help="Half the peak-to-peak height of the relief (input units), > 0.")
 @click.option("--wavelength", type=float, required=True,
