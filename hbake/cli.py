@@ -257,7 +257,12 @@ def print_summary(result: dict) -> None:
                   title_justify="left")
     table.add_column("what", style="bold")
     table.add_column("value")
-    rows = [
+    rows = []
+    route = m.get("route")
+    if route:
+        # Which route made the bundle and why (with --method auto: the choice).
+        rows.append(("route", f"{route.get('chosen')} ({route.get('requested')}): {route.get('reason')}"))
+    rows += [
         ("triangles", f"{m['source']['triangles']:,} -> {m['coarse']['triangles']:,} coarse"),
         ("convex pieces", f"{m['pieces']['count']}"),
         ("atlas", f"{m['atlas']['width']} x {m['atlas']['height']}, texel {_len(texel)}, "

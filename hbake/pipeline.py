@@ -217,14 +217,49 @@ def route_errors(full, coarse, param, baked, samples: int, seed: int) -> dict:
     t = baked.texel_size
     return {"triangles": int(len(coarse.faces)), "texel_size": float(t),
             "coarse_to_full_p95_texels": float(np.percentile(d_cf, 95) / t),
-            "full_to_coarse_p95_texels": float(np.percentile(d_fc, 95) / t)}
+            "full_to_coarse_p95_texels": float(np.percentile(d_fc, 95) / t),
+            # In metres too: the routes' texels differ, and the choice compares them.
+            "p95_m": float(max(np.percentile(d_cf, 95), np.percentile(d_fc, 95))),
+            "max_m": float(max(d_cf.max(), d_fc.max()))}
+
+
+def choose_route(cage_err: dict, pp_err: dict, bound: float, target: int) -> tuple[bool, str]:
+    """``method = "auto"``'s choice from the two routes' :func:`route_errors`: (keep the
+    preserve bundle?, the one-line reason). The preserve bundle is kept when both its
+    reconstruction errors (p95) are within ``bound`` texels and neither its p95 nor its
+    worst error (both ways, metres) is more than one cage texel above the cage bundle's: a
+    p95 alone kept a preserve bundle whose worst error was 4.4 texels (6.8 mm) against the
+    cage's 1.3 mm."""
+    worst = max(pp_err["coarse_to_full_p95_texels"], pp_err["full_to_coarse_p95_texels"])
+    t_cage = cage_err["texel_size"]
+    p95_ok = pp_err["p95_m"] <= cage_err["p95_m"] + t_cage
+    max_ok = pp_err["max_m"] <= cage_err["max_m"] + t_cage
+    if worst <= bound and p95_ok and max_ok:
+        return True, (f"the preserve route reached {pp_err['triangles']} triangles (target "
+                      f"{target}) with a reconstruction error of {worst:.3g} texel (p95, "
+                      f"the worse way), within the bound of {bound:g}, and its p95 and worst "
+                      f"errors ({pp_err['p95_m'] * 1e3:.3g}, {pp_err['max_m'] * 1e3:.3g} mm) within "
+                      f"a cage texel of the cage route's ({cage_err['p95_m'] * 1e3:.3g}, "
+                      f"{cage_err['max_m'] * 1e3:.3g} mm)")
+    if worst > bound:
+        return False, (f"the preserve route's reconstruction error is {worst:.3g} texel (p95, the "
+                       f"worse way), above the bound of {bound:g}: the cage route is used")
+    which, mine, theirs = (("worst", pp_err["max_m"], cage_err["max_m"]) if not max_ok
+                           else ("p95", pp_err["p95_m"], cage_err["p95_m"]))
+    return False, (f"the preserve route's {which} error ({mine * 1e3:.3g} mm) is more than a cage "
+                   f"texel ({t_cage * 1e3:.3g} mm) above the cage route's ({theirs * 1e3:.3g} mm): "
+                   f"the cage route is used")
 
 
 def _preserve_or_auto(input, full, settings, progress, warn):
     """``method = "pp"``: the preserve route (TargetUnreachableError propagates).
-    ``method = "auto"``: both routes; the preserve bundle when it reaches the target and
-    both reconstruction errors (p95) are within ``preserve.auto_max_error`` texels, else
-    the cage bundle. Returns (coarse, param, baked, manifest["route"])."""
+    ``method = "auto"``: both routes; the preserve bundle when it reaches the target, both
+    its reconstruction errors (p95) are within ``preserve.auto_max_error`` texels, and
+    neither its p95 nor its worst error (both ways, metres) is more than one cage texel
+    above the cage bundle's (a p95 alone kept a preserve bundle whose worst error was
+    4.4 texels against the cage's 1.3 mm); else the cage bundle. A preserve candidate that
+    fails for any reason is dropped with its one-line reason: auto never fails where the
+    cage route succeeds. Returns (coarse, param, baked, manifest["route"])."""
     from hbake.preserve import bake_preserve
 
     name = Path(input).name
@@ -238,6 +273,10 @@ def _preserve_or_auto(input, full, settings, progress, warn):
         if settings.method == "pp":
             raise
         pp_error = str(exc)
+    except HbakeError as exc:
+        if settings.method == "pp":
+            raise
+        pp_error = f"failed: {exc}"
     if settings.method == "pp":
         return pp.coarse, pp.param, pp.baked, {"requested": "pp", "chosen": "pp",
                                                "reason": "asked for", "pp": pp.stats}
@@ -252,18 +291,14 @@ def _preserve_or_auto(input, full, settings, progress, warn):
         if pp is not None:
             pp_err = route_errors(full, pp.coarse, pp.param, pp.baked, C.AUTO_SAMPLES, settings.seed)
             cands["pp"] = {**pp_err, **pp.stats}
-            worst = max(pp_err["coarse_to_full_p95_texels"], pp_err["full_to_coarse_p95_texels"])
-            if worst <= bound:
-                reason = (f"the preserve route reached {pp_err['triangles']} triangles (target "
-                          f"{target}) with a reconstruction error of {worst:.3g} texel (p95, "
-                          f"the worse way), within the bound of {bound:g}")
+            keep, reason = choose_route(cage_err, pp_err, bound, target)
+            if keep:
                 return pp.coarse, pp.param, pp.baked, {"requested": "auto", "chosen": "pp",
                                                        "reason": reason, "candidates": cands}
-            reason = (f"the preserve route's reconstruction error is {worst:.3g} texel (p95, the "
-                      f"worse way), above the bound of {bound:g}: the cage route is used")
         else:
             cands["pp"] = {"error": pp_error}
-            reason = f"the preserve route cannot reach the target ({pp_error}): the cage route is used"
+            reason = (f"the preserve route {pp_error}: the cage route is used" if pp_error.startswith("failed: ")
+                      else f"the preserve route cannot reach the target ({pp_error}): the cage route is used")
     warn(reason)
     return cage_coarse, cage_param, cage_baked, {"requested": "auto", "chosen": "cage",
                                                  "reason": reason, "candidates": cands}

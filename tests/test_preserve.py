@@ -390,3 +390,23 @@ def test_preserve_rebake_is_byte_identical(bakes, tmp_path_factory):
     assert ma == mb, [k for k in ma if ma[k] != mb.get(k)]
     for n in names:
         assert (first.bundle / n).read_bytes() == (again.bundle / n).read_bytes(), n
+
+
+def test_auto_weighs_the_worst_error_too():
+    """`auto` keeps the preserve bundle only when its p95 is within the bound and neither
+    its p95 nor its worst error is more than a cage texel above the cage bundle's: the
+    rocker arm's preserve bundle (p95 within the bound, worst 6.8 mm = 4.4 of its texels)
+    against the cage's 1.3 mm worst is refused, naming the worst error."""
+    from hbake.pipeline import choose_route
+
+    cage = {"texel_size": 1.2e-3, "p95_m": 0.4e-3, "max_m": 1.3e-3}
+    pp = {"triangles": 600, "coarse_to_full_p95_texels": 0.3, "full_to_coarse_p95_texels": 0.4,
+          "p95_m": 0.6e-3, "max_m": 6.8e-3}
+    keep, reason = choose_route(cage, pp, 1.0, 600)
+    assert not keep and "worst error (6.8 mm)" in reason and "cage route is used" in reason
+    keep, reason = choose_route(cage, {**pp, "max_m": 2.4e-3}, 1.0, 600)   # within a texel: kept
+    assert keep and "within the bound" in reason
+    keep, reason = choose_route(cage, {**pp, "p95_m": 1.7e-3, "max_m": 2.0e-3}, 1.0, 600)
+    assert not keep and "p95 error" in reason
+    keep, reason = choose_route(cage, {**pp, "full_to_coarse_p95_texels": 1.5}, 1.0, 600)
+    assert not keep and "above the bound of 1" in reason
