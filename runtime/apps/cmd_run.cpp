@@ -448,7 +448,9 @@ int run(const RunFlags& f) {
   j["warnings"] = {{"refused_patches", state.warnings.refused_patches},
                    {"clamped_patches", state.warnings.clamped_patches},
                    {"patches_dropped", state.warnings.patches_dropped},
-                   {"undersampled_patches", state.warnings.depth.undersampled_patches}};
+                   {"undersampled_patches", state.warnings.depth.undersampled_patches},
+                   {"deep_fallbacks", state.warnings.deep_fallbacks},
+                   {"deep_fallback_patches", state.warnings.deep_fallback_patches}};
   if (auto* udp = dynamic_cast<hrt::UdpDevice*>(raw.get())) {
     const hrt::UdpCounters c = udp->counters();
     j["udp"] = {{"port", udp->bound_port()}, {"received", c.received}, {"accepted", c.accepted},
@@ -501,11 +503,12 @@ int run(const RunFlags& f) {
                   dl["jitter_us"]["p50"].get<double>(), dl["jitter_us"]["p99"].get<double>(),
                   dl["jitter_us"]["max"].get<double>(), st.realtime ? "on" : "off");
     std::printf("\n  safety: %llu force clamps, %llu torque clamps, %llu rate-limited, %llu non-finite dropped, "
-                "%llu watchdog events, %llu refused patches\n",
+                "%llu watchdog events, %llu refused patches, %llu deep fallbacks\n",
                 static_cast<unsigned long long>(st.force_clamps), static_cast<unsigned long long>(st.torque_clamps),
                 static_cast<unsigned long long>(st.rate_limited), static_cast<unsigned long long>(st.non_finite),
                 static_cast<unsigned long long>(st.watchdog_events),
-                static_cast<unsigned long long>(state.warnings.refused_patches));
+                static_cast<unsigned long long>(state.warnings.refused_patches),
+                static_cast<unsigned long long>(state.warnings.deep_fallbacks));
     if (backend.gl)
       std::printf("  depth backend: %s; GL total median %.1f us, p99 %.1f us over %zu frames with patches\n",
                   backend.describe().c_str(), median(gl_total_us), percentile(gl_total_us, 0.99), gl_total_us.size());

@@ -107,6 +107,12 @@ struct ContactPatch {
   bool clamped = false;
   bool refused = false;
   bool facing = true;
+  // Deep fallback (frame(); src/contact/frame.cpp states the rules): the
+  // probe is deeper than this patch's force can be trusted (refused with its
+  // pieces overlapping beyond the deep threshold, or one of its pairs' normals
+  // flipped past the middle of B's piece): its force, torque and delta_force
+  // are zero, and its object's penalty (State::deep_*) acts instead.
+  bool deep_replaced = false;
 };
 
 }  // namespace hrt

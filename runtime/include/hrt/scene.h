@@ -190,6 +190,10 @@ struct Warnings {
   uint64_t empty_windows = 0;       // A's and B's triangles did not overlap in (u, v)
   uint64_t refused_patches = 0;     // n disagreed with the pieces (or a non-finite result): no force
   uint64_t clamped_patches = 0;     // delta above the pieces' bound: the force of the bound
+  // Deep penetration (src/contact/frame.cpp, "Deep fallback"): per frame and
+  // object, a penalty from the convex pieces replaced the patches' force.
+  uint64_t deep_fallbacks = 0;         // fallback wrenches applied (one per object and frame at most)
+  uint64_t deep_fallback_patches = 0;  // patches whose force a fallback replaced (refused deep, or a flipped pair)
   DepthWarnings depth;              // undersampled patches, uncovered FD configurations
 };
 
@@ -209,11 +213,25 @@ struct State {
   std::vector<int> patch_pair_count;
   std::vector<int> pair_order;        // pair indices grouped by patch
 
-  Vec3 force = Vec3::Zero();   // net force on A, world, N
-  Vec3 torque = Vec3::Zero();  // net torque on A about its centre of mass, world, N m
+  Vec3 force = Vec3::Zero();   // net force of the patches on A, world, N
+  Vec3 torque = Vec3::Zero();  // net torque of the patches on A about its centre of mass, world, N m
   // Per object b >= 1: the opposite wrench (force, torque about B's centre of
   // mass), world: (-F, -T_A - (c_A - c_B) x F) summed over its patches. [0] is zero.
   std::vector<Vec6> wrench_b;
+
+  // Deep fallback of this frame (src/contact/frame.cpp, "Deep fallback"),
+  // per object b >= 1 ([0] unused), at the scene's stiffness k. Not part of
+  // force, torque and wrench_b above (those stay the patches' sums, as
+  // `hrt query` reports them); a session adds it (session.cpp). It derives
+  // from U = k/2 O^2, O the overlap along deep_axis of one piece pair.
+  std::vector<char> deep_active;     // b's fallback acts this frame
+  std::vector<double> deep_overlap;  // O, m (> the deep threshold)
+  std::vector<Vec3> deep_axis;       // unit, world, from A into B: the force on A is -k O deep_axis
+  std::vector<Vec3> deep_point;      // world: A's deepest point along deep_axis (where the force acts)
+  std::vector<Vec6> deep_grad;       // dO / d(translation, rotation about c_A) = (axis, (point - c_A) x axis)
+  std::vector<Vec6> deep_wrench;     // on A: (force, torque about c_A) = -k O deep_grad
+  std::vector<int> deep_pair;        // the pair (index into pairs) it is the penalty of
+  int num_deep = 0;                  // objects with deep_active this frame
 
   StageTimings timings;
   Warnings warnings;
@@ -226,6 +244,24 @@ struct State {
   std::vector<int> uf_parent;      // per pair (capacity of `pairs`)
   std::vector<double> pair_weight;  // per pair
   std::vector<double> pair_overlap;  // per pair: its pieces' overlap along its own n (safety checks)
+  // Per pair (deep fallback, frame.cpp): the axis its penetration is judged
+  // along (its n, or the remembered one when n flipped), the pieces' overlap
+  // along it, whether it flipped; sized to `pairs` by frame().
+  std::vector<Vec3> pair_axis;
+  std::vector<double> pair_axis_overlap;
+  std::vector<char> pair_flipped;
+  std::vector<uint64_t> pair_key;   // (object, piece_a, piece_b)
+  std::vector<int> pair_sort;       // pair indices sorted by key
+  // The pairs of the last frame, sorted by key, with the axis each was judged
+  // along, in B's frame (a pair present in consecutive frames keeps it when
+  // its n turns by more than 90 degrees: the probe went past the middle of B's piece).
+  std::vector<uint64_t> memory_key;
+  std::vector<Vec3> memory_axis;
+  int num_memory = 0;
+  // Per object: A had no pair with it in the last frame, and A's pose in its
+  // frame then (a contact that starts deep is judged by which side A came from).
+  std::vector<char> free_last;
+  std::vector<Pose> free_pose;
   std::vector<int> pair_cluster;    // per pair: cluster id
   std::vector<double> cluster_weight;
   std::vector<int> cluster_patch;   // cluster -> patch index, -1 when dropped

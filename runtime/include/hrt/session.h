@@ -15,7 +15,11 @@
 //   3. materials: each patch's wrench scaled to its pair's stiffness k
 //      (the force model is linear in k); a patch the safety checks refused
 //      fades out over fade_time from its last accepted wrench instead of
-//      stepping to zero;
+//      stepping to zero; a probe deeper than its patches can be trusted
+//      gets its objects' deep fallback instead (src/contact/frame.cpp: the
+//      penalty k/2 O^2 of the deepest piece pair along its remembered axis,
+//      scaled to the pair's k like a patch, in K with its gradient, no
+//      friction), and the patches it replaced give nothing (no fade);
 //   4. friction (Coulomb, static and dynamic coefficients) on each patch's
 //      tangent plane, from the patch's normal force F_n = -F . n, acting at
 //      the centre of its contact region: solved inside the implicit step at
@@ -67,6 +71,14 @@ struct SessionOptions {
   // the grating slide at 100 Hz: the command's stiffness then predicts the
   // next 10 ms worse than holding the wrench does).
   bool predict = true;
+  // Longest prediction h v (m). A probe faster than max_prediction / h (1 m/s
+  // at 1 kHz, 0.1 m/s at 100 Hz: an impact or a scripted jump; the session
+  // tests slide at 20 mm/s) is predicted this far along v only: the linearization is local, and a
+  // prediction a whole frame of such a motion ahead can land beyond an
+  // object thinner than that (a 4 mm block jumping 10 mm into the 6 mm slab
+  // of the session tests moves 8.6 mm in its first frame: predicted 8.6 mm
+  // further, it was past the slab and felt nothing).
+  double max_prediction = 1e-3;
   // Caps of the device-side stiffness K_eff (the device's limits).
   double max_device_stiffness = 2000.0;          // N/m
   double max_device_angular_stiffness = 5.0;     // N m/rad
@@ -89,6 +101,7 @@ struct SessionFrame {
   Vec6 coupling = Vec6::Zero();     // coupling wrench on A (after the step)
   Vec6 device = Vec6::Zero();       // W0 of the device command (scene frame)
   int patches = 0, sticking = 0, slipping = 0, refused = 0, fading = 0;
+  int deep = 0;                     // objects whose deep fallback acted (counted in State::warnings too)
   double kinetic = 0.0, coupling_energy = 0.0, contact_energy = 0.0, gravity_energy = 0.0;
   double friction_energy = 0.0;     // 0: velocity-level friction stores no energy (the column is kept)
   StageTimings timings;             // of frame()

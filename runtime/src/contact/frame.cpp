@@ -66,9 +66,55 @@
 // Both are counted per frame in Warnings (refused_patches, clamped_patches)
 // and recorded per patch (ContactPatch::refused, clamped, delta_bound,
 // delta_force).
+//
+// Deep fallback. A patch's texture force is one height field along one n,
+// and a probe driven deep into B (a scripted jump, a stiff coupling, a
+// session that starts inside) leaves that model: its patch is refused
+// (above), or it passes every check with n the wrong way: a pair's normal is
+// its pieces' shortest way apart, which turns to B's far side once A's piece
+// is past the middle of B's piece (a 10 mm jump into the 6 mm slab of the
+// session tests: the texture force then pushes the probe through the slab).
+// A probe must never be left deep with no force, nor pushed further in:
+//
+//   Per pair i an axis a_i (unit, world, from A into B) and the pieces'
+//   overlap along it, O_i = max over P of a_i . x - min over Q of a_i . x:
+//   a_i = n_i, except that
+//   * a pair that was also a pair in the last frame keeps that frame's axis
+//     (fixed in B's frame) when n_i turns by more than 90 degrees from it: it
+//     "flipped" (A's piece went past the middle of B's); and
+//   * a pair of a contact that starts deep (A had no pair with B in the last
+//     frame) gets a_i = -n_i when, at A's pose of the last frame, the pieces
+//     were apart along -n_i but not along n_i: A came in from B's other side
+//     and crossed more than half of B's piece in one frame.
+//   A flipped pair keeps its axis only while it is deep:
+//     O_i > thr(A, B) = tol(A, B) + A.displacement_inward + B.displacement_inward
+//   (each surface lies within hull_deviation + displacement_inward inside its
+//   pieces, both in tol, so beyond thr the surfaces themselves overlap along a_i).
+//
+//   A patch is replaced (ContactPatch::deep_replaced: no force, delta_force 0)
+//   when one of its pairs flipped, or when it was refused for its normal or
+//   its depth (not for `facing` alone or a non-finite value) and one of its
+//   pairs is deep. Object B gets a fallback when a patch of B was replaced,
+//   or when B has deep pairs and no patch of B gives a force. The fallback is
+//   the penalty of one pair, the deepest candidate j (the pairs of B's
+//   replaced patches; all of B's pairs when no patch of B gives a force),
+//   never a sum over pairs (fifty pairs of a decomposed tool in one slab are
+//   one penetration, not fifty):
+//     U = k/2 O_j^2   (a_j fixed in B's frame, k the scene's stiffness),
+//     F = -k O_j a_j,   T = (x* - c_A) x F,
+//   x* the centroid of A's piece's vertices at its support along a_j (A's
+//   deepest point; the centre of the face when a face is the support). O_j
+//   grows by exactly the distance A moves along a_j and turns with x*, so
+//   (F, T) = -dU/d(translation, rotation about c_A) (checked against finite
+//   differences of U in runtime/tests/test_deep_penetration.cpp): the force
+//   pushes A out along -a_j (positive work as A leaves), and it is finite
+//   (O_j is at most the two pieces' extent along a_j). Kept in State::deep_*
+//   per object, not in State::force (hrt/scene.h); counted in
+//   Warnings::deep_fallbacks and deep_fallback_patches.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 
 #include "collision/collision.h"
@@ -169,6 +215,260 @@ void check_patch(const Scene& scene, State& st, int k, bool& refused, double& bo
   }
 }
 
+// ---------------------------------------------------------------------------
+// Deep fallback (see the header comment)
+// ---------------------------------------------------------------------------
+
+// Identity of a piece pair across frames: object (16 bits), A's piece and B's
+// piece (24 bits each; a model with more pieces would only share memories).
+uint64_t pair_key(const PiecePair& p) {
+  return (static_cast<uint64_t>(p.object_b & 0xffff) << 48) | (static_cast<uint64_t>(p.piece_a & 0xffffff) << 24) |
+         static_cast<uint64_t>(p.piece_b & 0xffffff);
+}
+
+// Overlap of A's piece pa (placed by world_from_a) and B's piece pb along `axis`.
+double axis_overlap(const collision::ModelGeometry& ga, int pa, const Eigen::Isometry3d& world_from_a,
+                    const collision::ModelGeometry& gb, int pb, const Eigen::Isometry3d& world_from_b,
+                    const Vec3& axis) {
+  int wa = 0, wb = 0;
+  return piece_extent(ga, pa, world_from_a, axis, &wa).hi - piece_extent(gb, pb, world_from_b, axis, &wb).lo;
+}
+
+double deep_threshold(const Scene& scene, int b) {
+  return scene.tolerance(b) + scene.model(0).quality.displacement_inward + scene.model(b).quality.displacement_inward;
+}
+
+// A's deepest point along `axis` (world): the centroid of piece pa's vertices
+// within a hair of its support, so that a face-on support acts at the face's
+// centre (a corner would give the penalty a torque of its own).
+Vec3 deepest_point(const collision::ModelGeometry& ga, int pa, const Eigen::Isometry3d& world_from_a,
+                   const Vec3& axis) {
+  const std::vector<Vec3>& v = ga.model->pieces[static_cast<size_t>(pa)].vertices;
+  const Vec3 d = world_from_a.linear().transpose() * axis;
+  double hi = -std::numeric_limits<double>::infinity();
+  for (const Vec3& x : v) hi = std::max(hi, d.dot(x));
+  const double eps = 1e-9 * (1.0 + ga.piece_bounds[static_cast<size_t>(pa)].radius) +
+                     1e-7 * ga.piece_bounds[static_cast<size_t>(pa)].radius;
+  Vec3 sum = Vec3::Zero();
+  int count = 0;
+  for (const Vec3& x : v)
+    if (d.dot(x) >= hi - eps) {
+      sum += x;
+      ++count;
+    }
+  return world_from_a * (count > 0 ? Vec3(sum / count) : Vec3::Zero());
+}
+
+// Sizes the deep-fallback scratch of `st` (an allocation only on the first
+// frame of a State a Session did not prepare, or when the pair buffer grew).
+void size_deep_state(State& st) {
+  const size_t n = st.poses.size();
+  if (st.deep_active.size() != n) {
+    st.deep_active.assign(n, 0);
+    st.deep_overlap.assign(n, 0.0);
+    st.deep_axis.assign(n, Vec3::Zero());
+    st.deep_point.assign(n, Vec3::Zero());
+    st.deep_grad.assign(n, Vec6::Zero());
+    st.deep_wrench.assign(n, Vec6::Zero());
+    st.deep_pair.assign(n, -1);
+    st.free_last.assign(n, 0);
+    st.free_pose.assign(n, Pose{});
+  }
+  const size_t m = st.pairs.size();
+  if (st.pair_axis.size() < m) {
+    st.pair_axis.resize(m);
+    st.pair_axis_overlap.resize(m);
+    st.pair_flipped.resize(m);
+    st.pair_key.resize(m);
+    st.pair_sort.resize(m);
+  }
+  if (st.memory_key.size() < m) {
+    st.memory_key.resize(m);
+    st.memory_axis.resize(m);
+  }
+}
+
+// Per pair: its axis, the overlap along it and whether it flipped (the
+// header's rules); then this frame's pairs become the memory of the next.
+void judge_pairs(const Scene& scene, State& st) {
+  size_deep_state(st);
+  const int np = st.num_pairs;
+  for (int i = 0; i < np; ++i) {
+    st.pair_key[static_cast<size_t>(i)] = pair_key(st.pairs[static_cast<size_t>(i)]);
+    st.pair_sort[static_cast<size_t>(i)] = i;
+  }
+  std::sort(st.pair_sort.begin(), st.pair_sort.begin() + np,
+            [&](int x, int y) { return st.pair_key[static_cast<size_t>(x)] < st.pair_key[static_cast<size_t>(y)]; });
+  const collision::ModelGeometry& ga = scene.world().geometry(0);
+  const Eigen::Isometry3d world_from_a = st.poses[0].iso();
+  int j = 0;
+  for (int s = 0; s < np; ++s) {
+    const int i = st.pair_sort[static_cast<size_t>(s)];
+    const PiecePair& p = st.pairs[static_cast<size_t>(i)];
+    const uint64_t key = st.pair_key[static_cast<size_t>(i)];
+    const int b = p.object_b;
+    const collision::ModelGeometry& gb = scene.world().geometry(b);
+    const Pose& pose_b = st.poses[static_cast<size_t>(b)];
+    const Eigen::Isometry3d world_from_b = pose_b.iso();
+    while (j < st.num_memory && st.memory_key[static_cast<size_t>(j)] < key) ++j;
+    Vec3 axis = p.n;
+    bool flipped = false;
+    if (j < st.num_memory && st.memory_key[static_cast<size_t>(j)] == key) {
+      const Vec3 m = pose_b.rotation * st.memory_axis[static_cast<size_t>(j)];
+      if (p.n.dot(m) < 0.0) {
+        axis = m;
+        flipped = true;
+      }
+    } else if (st.free_last[static_cast<size_t>(b)]) {
+      // A contact that starts here: where was A in the last frame, on which
+      // side of B's piece along n?
+      const Eigen::Isometry3d a_then = world_from_b * st.free_pose[static_cast<size_t>(b)].iso();
+      const double along_n = axis_overlap(ga, p.piece_a, a_then, gb, p.piece_b, world_from_b, p.n);
+      const double along_minus_n = axis_overlap(ga, p.piece_a, a_then, gb, p.piece_b, world_from_b, -p.n);
+      if (along_minus_n <= 0.0 && along_n > 0.0) {
+        axis = -p.n;
+        flipped = true;
+      }
+    }
+    double overlap = st.pair_overlap[static_cast<size_t>(i)];
+    if (flipped) {
+      overlap = axis_overlap(ga, p.piece_a, world_from_a, gb, p.piece_b, world_from_b, axis);
+      if (!(overlap > deep_threshold(scene, b)) || !std::isfinite(overlap)) {
+        // Not deep (a touching pair whose normal is ill-defined): its own n.
+        axis = p.n;
+        flipped = false;
+        overlap = st.pair_overlap[static_cast<size_t>(i)];
+      }
+    }
+    st.pair_axis[static_cast<size_t>(i)] = axis;
+    st.pair_axis_overlap[static_cast<size_t>(i)] = overlap;
+    st.pair_flipped[static_cast<size_t>(i)] = flipped ? 1 : 0;
+  }
+  // Memory for the next frame (sorted by key, axes in B's frame).
+  for (int s = 0; s < np; ++s) {
+    const int i = st.pair_sort[static_cast<size_t>(s)];
+    const Pose& pose_b = st.poses[static_cast<size_t>(st.pairs[static_cast<size_t>(i)].object_b)];
+    st.memory_key[static_cast<size_t>(s)] = st.pair_key[static_cast<size_t>(i)];
+    st.memory_axis[static_cast<size_t>(s)] = pose_b.rotation.conjugate() * st.pair_axis[static_cast<size_t>(i)];
+  }
+  st.num_memory = np;
+  // Which objects A is free of this frame (for the next frame's onsets).
+  for (size_t b = 1; b < st.free_last.size(); ++b) st.free_last[b] = 1;
+  for (int i = 0; i < np; ++i) st.free_last[static_cast<size_t>(st.pairs[static_cast<size_t>(i)].object_b)] = 0;
+  for (size_t b = 1; b < st.free_last.size(); ++b)
+    if (st.free_last[b]) {
+      const Eigen::Isometry3d rel = st.poses[b].iso().inverse() * world_from_a;
+      st.free_pose[b].position = rel.translation();
+      st.free_pose[b].rotation = Eigen::Quaterniond(rel.linear()).normalized();
+    }
+}
+
+// The patches a fallback replaces, and the fallback of each object (the
+// header's rules). After the safety stage, before the sums.
+void apply_deep_fallback(const Scene& scene, State& st) {
+  const int nb = scene.size();
+  st.num_deep = 0;
+  for (int b = 0; b < nb; ++b) {
+    st.deep_active[static_cast<size_t>(b)] = 0;
+    st.deep_overlap[static_cast<size_t>(b)] = 0.0;
+    st.deep_pair[static_cast<size_t>(b)] = -1;
+  }
+  for (int k = 0; k < st.num_patches; ++k) st.patches[static_cast<size_t>(k)].deep_replaced = false;
+  if (st.num_pairs == 0) return;
+  // Best candidate pair per object (deep_pair, deep_overlap): the deepest,
+  // a flipped pair before any other (its axis is the contact's history; a
+  // pair judged along its own n may be one whose n turned without our
+  // seeing it, a pair new this frame).
+  auto offer = [&](int i) {
+    const int b = st.pairs[static_cast<size_t>(i)].object_b;
+    const double o = st.pair_axis_overlap[static_cast<size_t>(i)];
+    if (!(o > deep_threshold(scene, b)) || !std::isfinite(o)) return;
+    char& active = st.deep_active[static_cast<size_t>(b)];
+    const int best = st.deep_pair[static_cast<size_t>(b)];
+    const bool flipped = st.pair_flipped[static_cast<size_t>(i)];
+    const bool best_flipped = active && st.pair_flipped[static_cast<size_t>(best)];
+    if (!active || (flipped && !best_flipped) ||
+        (flipped == best_flipped && o > st.deep_overlap[static_cast<size_t>(b)])) {
+      active = 1;
+      st.deep_overlap[static_cast<size_t>(b)] = o;
+      st.deep_pair[static_cast<size_t>(b)] = i;
+    }
+  };
+  for (int k = 0; k < st.num_patches; ++k) {
+    ContactPatch& patch = st.patches[static_cast<size_t>(k)];
+    const int first = st.patch_first_pair[static_cast<size_t>(k)];
+    const int count = st.patch_pair_count[static_cast<size_t>(k)];
+    const double thr = deep_threshold(scene, patch.object_b);
+    bool flipped = false, deep = false;
+    for (int s = 0; s < count; ++s) {
+      const int i = st.pair_order[static_cast<size_t>(first + s)];
+      flipped = flipped || st.pair_flipped[static_cast<size_t>(i)];
+      deep = deep || st.pair_axis_overlap[static_cast<size_t>(i)] > thr;
+    }
+    // Refused for its normal or its depth: `facing` and finite (a patch that
+    // faces nothing has no triangles; a non-finite one is a failure, not a depth).
+    const bool refused_deep = patch.refused && patch.facing && std::isfinite(patch.delta) && patch.grad.allFinite();
+    if (!flipped && !(refused_deep && deep)) continue;
+    patch.deep_replaced = true;
+    patch.force.setZero();
+    patch.torque.setZero();
+    patch.delta_force = 0.0;
+    ++st.warnings.deep_fallback_patches;
+    for (int s = 0; s < count; ++s) offer(st.pair_order[static_cast<size_t>(first + s)]);
+  }
+  // Objects with deep pairs and no patch that gives a force.
+  for (int b = 1; b < nb; ++b) {
+    if (st.deep_active[static_cast<size_t>(b)]) continue;
+    bool force = false, deep = false;
+    for (int k = 0; k < st.num_patches && !force; ++k) {
+      const ContactPatch& p = st.patches[static_cast<size_t>(k)];
+      force = p.object_b == b && !p.refused && !p.deep_replaced && p.covered && p.delta_force > 0;
+    }
+    if (force) continue;
+    const double thr = deep_threshold(scene, b);
+    for (int i = 0; i < st.num_pairs && !deep; ++i)
+      deep = st.pairs[static_cast<size_t>(i)].object_b == b && st.pair_axis_overlap[static_cast<size_t>(i)] > thr;
+    if (!deep) continue;
+    for (int k = 0; k < st.num_patches; ++k) {
+      ContactPatch& p = st.patches[static_cast<size_t>(k)];
+      if (p.object_b != b) continue;
+      p.deep_replaced = true;  // no force either way; counted as what the fallback stands for
+      p.force.setZero();
+      p.torque.setZero();
+      p.delta_force = 0.0;
+      ++st.warnings.deep_fallback_patches;
+    }
+    for (int i = 0; i < st.num_pairs; ++i)
+      if (st.pairs[static_cast<size_t>(i)].object_b == b) offer(i);
+  }
+  // The wrench of each object's pair.
+  const collision::ModelGeometry& ga = scene.world().geometry(0);
+  const Eigen::Isometry3d world_from_a = st.poses[0].iso();
+  const Vec3 c_a = world_from_a * scene.model(0).mass.center_of_mass;
+  const double k = scene.options().force.stiffness;
+  for (int b = 1; b < nb; ++b) {
+    if (!st.deep_active[static_cast<size_t>(b)]) continue;
+    const int i = st.deep_pair[static_cast<size_t>(b)];
+    const PiecePair& p = st.pairs[static_cast<size_t>(i)];
+    const Vec3 axis = st.pair_axis[static_cast<size_t>(i)];
+    const double o = st.deep_overlap[static_cast<size_t>(b)];
+    const Vec3 x = deepest_point(ga, p.piece_a, world_from_a, axis);
+    Vec6 g;
+    g << axis, (x - c_a).cross(axis);
+    const Vec6 w = -k * o * g;
+    if (!w.allFinite()) {  // never expected (finite poses, finite pieces); no force rather than a NaN
+      st.deep_active[static_cast<size_t>(b)] = 0;
+      continue;
+    }
+    st.deep_axis[static_cast<size_t>(b)] = axis;
+    st.deep_point[static_cast<size_t>(b)] = x;
+    st.deep_grad[static_cast<size_t>(b)] = g;
+    st.deep_wrench[static_cast<size_t>(b)] = w;
+    ++st.num_deep;
+    ++st.warnings.deep_fallbacks;
+  }
+}
+
 }  // namespace
 
 void compute_pair_overlaps(const Scene& scene, State& st) {
@@ -235,8 +535,10 @@ void frame(const Scene& scene, State& st) {
   st.force.setZero();
   st.torque.setZero();
   for (Vec6& w : st.wrench_b) w.setZero();
-  // O_i of every pair, for the safety checks (apply_patch_safety).
+  // O_i of every pair, for the safety checks (apply_patch_safety), and the
+  // axis each pair's penetration is judged along (deep fallback).
   compute_pair_overlaps(scene, st);
+  judge_pairs(scene, st);
   if (st.depth_backend && st.num_patches > 0) {
     // All patches of the frame in one call (the GL backend tiles them).
     for (int k = 0; k < st.num_patches; ++k) {
@@ -265,11 +567,17 @@ void frame(const Scene& scene, State& st) {
                            &st.tracks[static_cast<size_t>(k)].warned);
 
     apply_patch_safety(scene, st, k);
-
+  }
+  // A probe deeper than its patches can be trusted: the pieces' penalty.
+  apply_deep_fallback(scene, st);
+  for (int k = 0; k < st.num_patches; ++k) {
+    const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
+    const int b = patch.object_b;
     st.force += patch.force;
     st.torque += patch.torque;
     Vec3 fb, tb;
-    wrench_on_b(patch.force, patch.torque, c_a, pose_b.iso() * B.mass.center_of_mass, fb, tb);
+    wrench_on_b(patch.force, patch.torque, c_a, st.poses[static_cast<size_t>(b)].iso() * scene.model(b).mass.center_of_mass,
+                fb, tb);
     st.wrench_b[static_cast<size_t>(b)].head<3>() += fb;
     st.wrench_b[static_cast<size_t>(b)].tail<3>() += tb;
   }

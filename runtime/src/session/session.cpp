@@ -54,6 +54,25 @@ Session::Session(const Scene& scene, const SessionOptions& options, const std::v
   friction_.resize(static_cast<size_t>(scene.options().cluster.max_patches));
   friction_patch_.resize(friction_.size());
   for (int b = 0; b < scene.size(); ++b) state_.poses[static_cast<size_t>(b)] = initial[static_cast<size_t>(b)];
+  // The deep fallback's scratch (frame() would size it on its first frame):
+  // per object, and per pair like the State's other pair buffers.
+  const size_t n = static_cast<size_t>(scene.size()), np = state_.pairs.size();
+  state_.deep_active.assign(n, 0);
+  state_.deep_overlap.assign(n, 0.0);
+  state_.deep_axis.assign(n, Vec3::Zero());
+  state_.deep_point.assign(n, Vec3::Zero());
+  state_.deep_grad.assign(n, Vec6::Zero());
+  state_.deep_wrench.assign(n, Vec6::Zero());
+  state_.deep_pair.assign(n, -1);
+  state_.free_last.assign(n, 0);
+  state_.free_pose.assign(n, Pose{});
+  state_.pair_axis.resize(np);
+  state_.pair_axis_overlap.resize(np);
+  state_.pair_flipped.resize(np);
+  state_.pair_key.resize(np);
+  state_.pair_sort.resize(np);
+  state_.memory_key.resize(np);
+  state_.memory_axis.resize(np);
 }
 
 void Session::set_trajectory(int b, const Trajectory* trajectory) {
@@ -107,8 +126,11 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
   // below): predicted along it, the error would act as a negative damper.
   Vec6 shift = Vec6::Zero();  // predicted - current, twist
   if (options_.predict) {
-    predicted.x += h * body_state_.v;
-    shift.head<3>() = h * body_state_.v;
+    Vec3 s = h * body_state_.v;
+    const double len = s.norm();
+    if (len > options_.max_prediction && len > 0) s *= std::max(options_.max_prediction, 0.0) / len;
+    predicted.x += s;
+    shift.head<3>() = s;
   }
   state_.poses[0] = predicted.pose(com);
   for (int b = 1; b < scene_.size(); ++b) {
@@ -136,7 +158,12 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
     ++out.patches;
 
     Vec6 w = Vec6::Zero();
-    if (p.refused) {
+    if (p.deep_replaced) {
+      // Its object's deep fallback (below) stands for it: no fade of a wrench
+      // that pushed the wrong way or that the depth made meaningless.
+      if (p.refused) ++out.refused;
+      mem->fade = 0.0;
+    } else if (p.refused) {
       // Fade the last accepted wrench out instead of stepping to zero.
       ++out.refused;
       mem->fade = std::max(0.0, mem->fade - h / std::max(options_.fade_time, 1e-9));
@@ -217,6 +244,24 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
   }
   for (PatchMemory& m : memory_)
     if (m.active && m.seen != frames_) m.active = false;  // the contact ended: forget its anchors
+
+  // The deep fallback of each object (frame.cpp): U = k/2 O^2 along the
+  // pair's axis, scaled to the pair's stiffness like a patch, with its
+  // Gauss-Newton stiffness -k g g^T (exact in translation: O is linear in
+  // it) and its energy carried back along g from the predicted pose.
+  for (int b = 1; b < scene_.size() && state_.num_deep > 0; ++b) {
+    if (!state_.deep_active[static_cast<size_t>(b)]) continue;
+    const Material& mat = material(b);
+    const double kp = mat.stiffness > 0 ? mat.stiffness : k_scene;
+    const Vec6 w = (kp / k_scene) * state_.deep_wrench[static_cast<size_t>(b)];
+    const Vec6& g = state_.deep_grad[static_cast<size_t>(b)];
+    if (!w.allFinite() || !g.allFinite()) continue;
+    contact += w;
+    K.noalias() -= kp * g * g.transpose();
+    const double o_now = std::max(0.0, state_.deep_overlap[static_cast<size_t>(b)] - g.dot(shift));
+    out.contact_energy += 0.5 * kp * o_now * o_now;
+    ++out.deep;
+  }
 
   // Energies of the state the frame saw (before the step).
   const Coupling c = options_.coupling_enabled ? options_.coupling : Coupling{};
