@@ -24,6 +24,7 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -59,22 +60,31 @@ def _failed(res, code, *needles):
     return line
 
 
+# Forks and execs the command from a fresh interpreter and reports the child's ru_maxrss:
+# Linux carries a process's high-water mark across fork and exec, so a child forked
+# straight from pytest (1-2 GB after the whole suite) would report pytest's peak, not its
+# own. The fresh interpreter's own mm is small when it forks the command.
+_WRAPPER = """
+import os, sys
+pid = os.fork()
+if pid == 0:
+    os.execvp(sys.argv[2], sys.argv[2:])
+_, status, ru = os.wait4(pid, 0)
+with open(sys.argv[1], "w") as f:
+    f.write(str(ru.ru_maxrss))
+sys.exit(os.waitstatus_to_exitcode(status))
+"""
+
+
 def _peak_rss(cmd, timeout=300):
-    """(returncode, stderr, peak RSS bytes) of one child, from wait4's rusage (Linux: KiB)."""
-    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + timeout
-    while True:
-        pid, status, ru = os.wait4(p.pid, os.WNOHANG)
-        if pid:
-            break
-        if time.monotonic() > deadline:
-            p.kill()
-            raise AssertionError(f"{cmd} ran past {timeout} s")
-        time.sleep(0.05)
-    err = p.stderr.read().decode(errors="replace")
-    p.stderr.close()
-    p.returncode = os.waitstatus_to_exitcode(status)
-    return p.returncode, err, ru.ru_maxrss * 1024
+    """(returncode, stderr, peak RSS bytes) of one run of ``cmd`` (Linux: ru_maxrss in KiB)."""
+    import tempfile
+
+    with tempfile.NamedTemporaryFile("r", suffix=".rss") as out:
+        r = subprocess.run([sys.executable, "-c", _WRAPPER, out.name, *map(str, cmd)], stdout=subprocess.DEVNULL,
+                           stderr=subprocess.PIPE, text=True, timeout=timeout)
+        kib = int(open(out.name).read() or 0)
+    return r.returncode, r.stderr, kib * 1024
 
 
 # ----------------------------------------------------------------------------
