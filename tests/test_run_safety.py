@@ -198,15 +198,16 @@ def _plugin_scene(models, tmp_path, plugin, name="plugin", duration=10.0, trace=
 
 def test_a_plugin_whose_read_blocks_ends_the_session_with_exit_5(models, hrt, tmp_path):
     plugin = _test_plugin(hrt, "blocking_read")
-    scene = _plugin_scene(models, tmp_path, plugin, "blocking", duration=30.0)
+    scene = _plugin_scene(models, tmp_path, plugin, "blocking", duration=300.0)
     t0 = time.monotonic()
-    res = hrt_run(hrt, scene, "--realtime", timeout=20)
+    res = hrt_run(hrt, scene, "--realtime", timeout=120)
     wall = time.monotonic() - t0
     line = _failed(res, 5, plugin, "read()")
     print(f"{wall:.2f} s: {line}")
-    # The plugin blocks on its first read after 0.3 s of poses (bad_plugin.c); the 30 s session
-    # ends within the read deadline plus a second (start-up included: a few seconds here).
-    assert wall < 10.0
+    # The plugin blocks on its first read after 0.3 s of poses (bad_plugin.c); the 300 s session
+    # ends within the read deadline plus a second (measured 0.85 s with start-up). The bound
+    # leaves a wide margin for a loaded machine and still fails a session that runs its course.
+    assert wall < 60.0
     assert (tmp_path / "blocking-trace.csv").is_file()  # the trace of what ran is written
 
 
