@@ -9,7 +9,8 @@
 #
 #   bash examples/bench_heights.sh [OUTDIR]    (default out/bench; bundles baked by bench_runtime.sh)
 #
-# Environment: HRT, ROUNDS (3), FRAMES (500), RESOLUTIONS (50,128).
+# Environment: HRT, ROUNDS (3), FRAMES (500), RESOLUTIONS (50,128),
+# MODES ("coarse surface mesh": the --heights modes compared).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/bench}
@@ -21,6 +22,7 @@ fi
 ROUNDS=${ROUNDS:-3}
 FRAMES=${FRAMES:-500}
 RES=${RESOLUTIONS:-50,128}
+MODES=${MODES:-coarse surface mesh}
 echo "machine: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs), load $(cut -d' ' -f1-3 /proc/loadavg)"
 bench() {  # bench MODE [extra hrt bench options]
   local mode=$1
@@ -31,14 +33,14 @@ bench() {  # bench MODE [extra hrt bench options]
     --resolutions "$RES" --copies 1 --heights "$mode" "$@"
 }
 for r in $(seq "$ROUNDS"); do
-  for mode in coarse surface; do
+  for mode in $MODES; do
     echo "--- round $r, --heights $mode"
     bench "$mode" | sed -n '/^Scraping path: median/,/^$/p'
   done
 done
 if command -v valgrind >/dev/null; then
   echo "--- instructions of hrt::frame over the frames (callgrind, FRAMES=100, one pass after warm-up)"
-  for mode in coarse surface; do
+  for mode in $MODES; do
     IFS=, read -ra Ns <<<"$RES"
     for N in "${Ns[@]}"; do
       n=$(FRAMES=100 valgrind --tool=callgrind --callgrind-out-file=/dev/null --toggle-collect='hrt::frame*' \

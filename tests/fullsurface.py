@@ -417,9 +417,11 @@ def surface_columns(model: Model, pose, X, n, u, v, probe: bool, ref=None) -> Co
 # ----------------------------------------------------------------------------
 
 
-def hrt_query(hrt: str, a: Model, b: Model, pose_a, pose_b, N: int) -> dict:
+def hrt_query(hrt: str, a: Model, b: Model, pose_a, pose_b, N: int, heights: str | None = None) -> dict:
     cmd = [hrt, "query", str(a.bundle), str(b.bundle), "--pose-a", *map(repr, map(float, pose_a)),
            "--pose-b", *map(repr, map(float, pose_b)), "--resolution", str(N), "--json"]
+    if heights:
+        cmd += ["--heights", heights]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, f"{' '.join(cmd)}: exit {res.returncode}: {res.stderr}"
     return json.loads(res.stdout)
@@ -950,7 +952,8 @@ def _translate(pose, d):
     return [*(np.asarray(pose[:3], float) + d).tolist(), *map(float, pose[3:])]
 
 
-def path_query(hrt: str, a: Model, b: Model, pose_a, pose_b, offsets, N: int = 50, chunk: int = 60) -> list[list[dict]]:
+def path_query(hrt: str, a: Model, b: Model, pose_a, pose_b, offsets, N: int = 50, chunk: int = 60,
+               heights: str | None = None) -> list[list[dict]]:
     """The contacts of A moved by each of ``offsets`` (world, m) relative to B.
 
     One `hrt query` holds many copies of B (every B is an independent object of the
@@ -967,6 +970,8 @@ def path_query(hrt: str, a: Model, b: Model, pose_a, pose_b, offsets, N: int = 5
         for d in part:
             cmd += ["--pose-b", *map(repr, _translate(pose_b, -np.asarray(d, float)))]
         cmd += ["--resolution", str(N), "--max-patches", str(64 * len(part)), "--no-verify-hashes", "--json"]
+        if heights:
+            cmd += ["--heights", heights]
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
         assert res.returncode == 0, f"{' '.join(cmd[:6])} ...: exit {res.returncode}: {res.stderr[-2000:]}"
         q = json.loads(res.stdout)

@@ -199,4 +199,10 @@ def test_multirate_linearized_model_beats_zero_order_hold(slide_models, tmp_path
     print(f"multirate at 100 Hz: RMS error zero-order hold {e_zoh * 1e3:.3f} mN, linearized "
           f"{e_lin * 1e3:.3f} mN, ratio {e_zoh / e_lin:.2f} (reference RMS force "
           f"{np.sqrt(np.mean(np.sum(fr[:n][m] ** 2, 1))) * 1e3:.1f} mN)")
-    assert e_zoh >= 3 * e_lin
+    # The linearized model must more than halve the zero-order hold's error. (It cut it
+    # by 3.3 while Eq. 7's central differences smoothed the force over two steps at
+    # each V-shaped kink of delta between ridges; the kink rule, hrt/depth.h
+    # kink_safe_difference, gives the true gradient there, whose force turns within a
+    # fraction of a step: a step no linear prediction between 100 Hz frames follows.
+    # Measured with it: 2.76.)
+    assert e_zoh >= 2.5 * e_lin

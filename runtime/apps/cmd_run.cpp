@@ -175,6 +175,9 @@ int run(const RunFlags& f) {
     if (cfg.backend == "gl" && cfg.scene.force.shortcut)
       throw Exit(kUsage, "--backend gl: " + cfg.file +
                              " sets [force] shortcut = true, which only the CPU backend implements; see hrt run --help");
+    if (cfg.backend == "gl" && cfg.scene.force.heights == hrt::HeightMode::mesh)
+      throw Exit(kUsage, "--backend gl: " + cfg.file +
+                             " sets [force] heights = \"mesh\", which only the CPU backend implements; see hrt run --help");
   }
   hrt::BackendChoice backend_choice = hrt::BackendChoice::cpu;
   if (!hrt::parse_backend_choice(cfg.backend, backend_choice))  // both readers checked it already

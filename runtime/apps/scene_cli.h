@@ -96,8 +96,10 @@ struct SceneFlags {
     cmd->add_flag("--shortcut", shortcut, "resample h_A(0) for the translated and n-rotated configurations (Sec. 5.2)");
     cmd->add_option("--heights", heights,
                     "surface: the reconstructed full surface on each texel column (parallax corrected); coarse: the "
-                    "literal Eq. 8 of format 1.0 (n . f(q) at the coarse point q's column)")
-        ->check(CLI::IsMember({"surface", "coarse"}))
+                    "literal Eq. 8 of format 1.0 (n . f(q) at the coarse point q's column); mesh: the atlas quads "
+                    "themselves, every face in reach at any angle, each texel the highest point over its square "
+                    "(CPU backend only)")
+        ->check(CLI::IsMember({"surface", "coarse", "mesh"}))
         ->capture_default_str();
     cmd->add_option("--max-patches", max_patches, "most contact patches per frame")->check(Integer())->capture_default_str();
     cmd->add_flag("--auto-resolution", auto_resolution,
@@ -140,6 +142,8 @@ struct SceneFlags {
       throw Exit(kUsage,
                  "--shortcut: the Sec. 5.2 shortcut is implemented by the CPU backend only; drop --shortcut or use "
                  "--backend cpu");
+    if (backend == "gl" && heights == "mesh")
+      throw Exit(kUsage, "--heights mesh: implemented by the CPU backend only; use --backend cpu");
   }
 
   hrt::gl::GlDepthOptions gl_options() const {
@@ -156,7 +160,9 @@ struct SceneFlags {
     o.force.lin_step = lin_step;
     o.force.ang_step = ang_step;
     o.force.shortcut = shortcut;
-    o.force.heights = heights == "coarse" ? hrt::HeightMode::coarse : hrt::HeightMode::surface;
+    o.force.heights = heights == "coarse" ? hrt::HeightMode::coarse
+                      : heights == "mesh" ? hrt::HeightMode::mesh
+                                          : hrt::HeightMode::surface;
     o.collision.margin = margin;
     o.cluster.max_patches = max_patches;
     o.cluster.auto_resolution = auto_resolution;
@@ -217,6 +223,9 @@ inline CliBackend select_depth_backend(hrt::BackendChoice choice, const std::str
   if (effective == hrt::BackendChoice::automatic && options.force.shortcut) {
     effective = hrt::BackendChoice::cpu;
     note = "backend: auto -> cpu (the Sec. 5.2 shortcut is implemented by the CPU backend only)";
+  } else if (effective == hrt::BackendChoice::automatic && options.force.heights == hrt::HeightMode::mesh) {
+    effective = hrt::BackendChoice::cpu;
+    note = "backend: auto -> cpu (heights = mesh is implemented by the CPU backend only)";
   }
   try {
     out.selection = hrt::gl::select_backend(effective, models, options, gl_options);

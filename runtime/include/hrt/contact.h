@@ -58,6 +58,12 @@ struct ContactPatch {
   Window window;
   std::vector<uint32_t> tris_a;  // coarse triangles of A facing +n (the highest surface)
   std::vector<uint32_t> tris_b;  // coarse triangles of B facing -n (the lowest surface)
+  // HeightMode::mesh only (else empty): the other coarse triangles of the
+  // patch's pieces near the other side (turned more than 60 degrees from n,
+  // resp. -n), whose full surface can still stick out towards it (tips,
+  // fins). They join the height fields, not the window.
+  std::vector<uint32_t> reach_a;
+  std::vector<uint32_t> reach_b;
   int piece_pairs = 0;           // how many piece pairs were clustered into this patch
 
   // Results of the force model (filled by compute_patch_wrench).

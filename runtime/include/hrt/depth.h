@@ -20,6 +20,8 @@
 //      through A's centre of mass c_A). d delta / d n = 1 by definition
 //      (translating A along n adds the step to every h_A). The patch's
 //      contact data (n, u, v, window, triangles) are frozen for all 11.
+//      Where a kink of delta lies within a translation step, the steeper
+//      one-sided difference replaces the central one (kink_safe_difference).
 //   4. Eq. 5: (F_u F_v F_n T_u T_v T_n) = -k max(delta, 0) grad delta, i.e. the
 //      force of the energy U = k max(delta, 0)^2 / 2 (Eq. 3 clamped: a patch
 //      with delta <= 0 gives no force); Eq. 6 maps it to the world with the
@@ -72,6 +74,22 @@ enum class HeightMode : int {
   // coarse point under the texel centre (parallax included). For comparison
   // and benchmarks.
   coarse = 1,
+  // The displaced surface itself, conservative per grid texel: every usable
+  // atlas quad (SurfaceMap::quad_ok) of each coarse face in reach, at any
+  // angle to n (ContactPatch::reach_a / reach_b as well as tris_a / tris_b),
+  // is split into two triangles whose corners are the atlas positions; each
+  // triangle is projected along n, and every grid texel whose square
+  // footprint it meets keeps the triangle's largest height over the
+  // footprint (A; B the smallest), bounded by the plane's value at the
+  // footprint's corners and by the triangle's corners. So a texel holds the
+  // highest point of A's full surface over its whole square (to within the
+  // triangles' flatness: the atlas quads' bilinear twist), not at its
+  // centre: a tip or fin narrower than a texel cannot hide between centres,
+  // a face turned away from n still contributes the parts of its surface
+  // that stick out towards B, and the height of a texel changes
+  // continuously as A moves. No fixed point. CPU backend only. See
+  // docs/bundle-format.md "Heights".
+  mesh = 2,
 };
 
 // Lateral tolerance of the surface mode, as a fraction of the smaller of the
@@ -147,6 +165,8 @@ struct DepthScratch {
   std::vector<double> ha;           // A at one configuration (directional_depth)
   std::vector<double> hcfg;         // A at the 10 perturbed configurations, N x N each
   HeightSeeds seeds;                // A's configuration-0 seeds (surface mode)
+  // HeightMode::mesh: a patch's tris and reach lists of one side, joined.
+  std::vector<uint32_t> tris_a, tris_b;
 
   // Border of the shortcut's h_A(0) map reserved by reserve() (texels); a
   // larger lin_step makes compute_patch_wrench grow the buffers once.
@@ -205,7 +225,8 @@ void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m,
 void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from_m, const int* borders, int count,
                              const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
                              const Window& w, bool keep_max, double* const* out,
-                             HeightMode mode = HeightMode::surface);
+                             HeightMode mode = HeightMode::surface,
+                             double cull = std::numeric_limits<double>::quiet_NaN());
 
 // rasterize_heights in the surface mode (with `border`, same layout), also
 // writing each texel's seed (seeds reserved for w.resolution + 2 border).
@@ -225,6 +246,12 @@ void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_fro
 void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Eigen::Isometry3d& seed_world_from_m,
                      const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, bool keep_max,
                      const double* seed_h, int border, const HeightSeeds& seeds, double* out);
+
+// The faces whose heights one side of a patch contributes: `tris` (tris_a or
+// tris_b), and in the mesh mode the side's reach list as well, joined in
+// `buf` (which grows to the largest patch once).
+const std::vector<uint32_t>& height_faces(const std::vector<uint32_t>& tris, const std::vector<uint32_t>& reach,
+                                          HeightMode mode, std::vector<uint32_t>& buf);
 
 // Eq. 9 for one configuration of A: world_from_a is A's whole placement
 // (pose_a.iso(), possibly composed with a config_motion), world_from_b B's.
@@ -312,8 +339,85 @@ bool plan_depth(const Model& A, const Pose& pose_a, const Model& B, const Pose& 
 // The last step of compute_depth_gradient, shared by the backends: from
 // delta_at[], lin_step and ang_step, sets covered (delta_at[0] > -inf),
 // delta, grad (Eq. 7's central differences, one-sided next to an uncovered
-// configuration) and uncovered_configurations.
+// configuration; the translations' through kink_safe_difference) and
+// uncovered_configurations.
 void finish_depth_gradient(DepthGradient& g);
+
+// A kink within Eq. 7's translation step.
+//
+// delta is the maximum over the window of h_A - h_B, so as A slides it is
+// piecewise smooth, with a kink wherever the deepest point jumps from one
+// feature to another: two nested reliefs make a V about the nested position
+// (slopes -+2 a pi / lambda for gratings of amplitude a and wavelength
+// lambda). The default step is one grid texel; when a kink lies within it,
+// the central difference (delta(+h) - delta(-h)) / 2h averages the slopes of
+// the two branches and misses by up to the whole slope (a V seen 0.1 step
+// from its bottom gives a tenth of it). Both backends evaluate exactly the
+// 11 configurations, so the kink is told from the three values of the axis:
+//   s+ = (delta(+h) - delta(0)) / h, s- = (delta(0) - delta(-h)) / h,
+//   turn = s+ - s-, q = turn / max(|s+|, |s-|).
+// - A maximum of smooth branches only turns its slope upwards at a kink:
+//   turn <= 0 (concave, straight) keeps the central difference.
+// - Smooth curvature turns the slope by |delta''| h, a small part of it
+//   where the step resolves the relief; a kink within the step by up to 2
+//   (a V seen from its bottom). q <= kKinkSmoothTurn keeps the central
+//   difference bit for bit, q >= kKinkStraddleTurn takes the one-sided
+//   difference below, linear in between.
+// - The side: the one-sided difference across the kink mixes the two
+//   branches' slopes and is the smaller in size; the steeper one (s+ when
+//   the central difference is positive, else s-) is configuration 0's own
+//   branch: exact for a V of equal slopes (nested equal reliefs) and for any
+//   kink seen from its steeper branch; seen from the shallower branch of an
+//   uneven kink it is off by up to the turn (the central difference by half
+//   of it).
+// - Near a V's bottom the two sizes are alike and the side is undecided:
+//   with r = |central| / (turn / 2) (for slopes of opposite signs, the
+//   difference of their sizes over their sum; >= 1 for equal signs), r <=
+//   kKinkUndecided keeps the central difference (0 at a symmetric V, whose
+//   gradient there is undefined), r >= kKinkDecided the one-sided one,
+//   linear in between: the gradient runs continuously through the V (no
+//   force step as A crosses it), and is exact from about kKinkDecided of a
+//   step from its bottom on. Within the ramp a difference of delta between
+//   the backends (float rounding, the occlusion search's quantum) moves the
+//   result up to 1 + 1 / (kKinkDecided - kKinkUndecided), about 15, times
+//   as much as it moves the central difference; elsewhere at most twice
+//   (one-sided).
+// What it costs: the one-sided difference is first order (|delta''| h / 2 of
+// the branch, against |delta'''| h^2 / 6 for the central one); a kink near
+// the far end of the step, whose small turn the branch's own concave
+// curvature cancels, goes unseen (the central difference is kept, off by
+// the kink's share of the step); and a convex stretch that turns the slope
+// by more than kKinkStraddleTurn over a step (the bottom of a smooth well,
+// which three values cannot tell from a V) is differentiated one-sided too.
+// And the force now turns within a fraction of a step at a V's bottom where
+// it used to turn over two steps: a session's linear prediction between
+// frames (the multirate model) follows it less well (on the ball sliding
+// over the strip grating of tests/test_session_physics.py at 100 Hz, RMS
+// error 3.22 mN against 2.67 mN with Eq. 7's central differences).
+// The rotations keep Eq. 7's central differences: their kinks include a
+// flat face tilting on a flat face, whose smooth central-difference torque
+// about the rest position the session's stiffness is built around.
+//
+// The curvature that apply_depth_gradient takes from the same delta_at[]
+// (the second differences, (s+ - s-) / h: the session's stiffness and its
+// multirate force model) is left as it is: across a kink within the step
+// it is the kink's turn spread over the step, i.e. how much the gradient
+// changes within about one step of motion, which is what a stiffness that
+// stands for the force over the motion until the next frame has to
+// anticipate (the one-sided gradient keeps its value up to the kink, then
+// turns by the whole slope). Measured on the ball sliding over the strip
+// grating of tests/test_session_physics.py, leaving the kink's part out of
+// it where the one-sided difference is used makes the multirate prediction
+// worse (RMS error 3.44 mN against 3.22 mN with the turn kept).
+constexpr double kKinkSmoothTurn = 0.02;
+constexpr double kKinkStraddleTurn = 0.05;
+constexpr double kKinkUndecided = 0.03;
+constexpr double kKinkDecided = 0.10;
+// d delta / dx from delta at x + step, x and x - step by the rule above;
+// straddle (optional) gets the weight of the one-sided difference in the
+// result (0: the central difference, 1: the steeper one-sided one).
+double kink_safe_difference(double d_plus, double d_zero, double d_minus, double step,
+                            double* straddle = nullptr);
 
 // The force model on a patch from its DepthGradient (what
 // compute_patch_wrench does after compute_depth_gradient): patch.covered,

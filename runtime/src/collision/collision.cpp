@@ -809,6 +809,10 @@ State::State(const Scene& scene) {
   for (ContactPatch& p : patches) {
     p.tris_a.reserve(A.faces.size());
     p.tris_b.reserve(b_faces);
+    if (scene.options().force.heights == HeightMode::mesh) {
+      p.reach_a.reserve(A.faces.size());
+      p.reach_b.reserve(b_faces);
+    }
   }
   patch_ids.assign(static_cast<size_t>(maxp), 0);
   depth_jobs.resize(static_cast<size_t>(maxp));

@@ -208,8 +208,10 @@ void pieces_box(const ModelGeometry& g, const std::vector<int>& pieces, int npie
 // sorted.
 void collect_faces(const Model& m, const ModelGeometry& g, const Eigen::Matrix3d& rot, const Vec3& dir,
                    const std::vector<int>& pieces_in, int npieces, const Vec3& region_center, const Vec3& region_half,
-                   std::vector<uint32_t>& face_mark, uint32_t stamp, std::vector<uint32_t>& out) {
+                   std::vector<uint32_t>& face_mark, uint32_t stamp, std::vector<uint32_t>& out,
+                   std::vector<uint32_t>* away = nullptr) {
   out.clear();
+  if (away) away->clear();
   const Vec3 dir_local = rot.transpose() * dir;
   const Vec3 rlo = region_center - region_half, rhi = region_center + region_half;
   // A face faces dir when n_f . dir > kFacingCos, i.e. its angle to dir is
@@ -221,7 +223,7 @@ void collect_faces(const Model& m, const ModelGeometry& g, const Eigen::Matrix3d
          ++bi) {
       const ModelGeometry::FaceBucket& bucket = g.buckets[static_cast<size_t>(bi)];
       const double theta = std::acos(std::clamp(bucket.axis.dot(dir_local), -1.0, 1.0));
-      if (theta - bucket.half_angle >= kFacingAngle) continue;
+      if (!away && theta - bucket.half_angle >= kFacingAngle) continue;
       for (int ci = bucket.first_chunk; ci < bucket.first_chunk + bucket.num_chunks; ++ci) {
         const ModelGeometry::FaceChunk& ch = g.chunks[static_cast<size_t>(ci)];
         if ((ch.lo.array() > rhi.array()).any() || (ch.hi.array() < rlo.array()).any()) continue;
@@ -229,16 +231,18 @@ void collect_faces(const Model& m, const ModelGeometry& g, const Eigen::Matrix3d
           const uint32_t f = g.face_order[static_cast<size_t>(j)];
           if (face_mark[f] == stamp) continue;
           face_mark[f] = stamp;
-          if (!(m.face_normals[f].dot(dir_local) > kFacingCos)) continue;
+          const bool facing = m.face_normals[f].dot(dir_local) > kFacingCos;
+          if (!facing && !away) continue;
           const Eigen::Vector4d& sph = g.face_spheres[f];
           const Vec3 gap = ((sph.head<3>() - region_center).cwiseAbs() - region_half).cwiseMax(0.0);
           if (gap.squaredNorm() > sph[3] * sph[3]) continue;
-          out.push_back(f);
+          (facing ? out : *away).push_back(f);
         }
       }
     }
   }
   std::sort(out.begin(), out.end());
+  if (away) std::sort(away->begin(), away->end());
 }
 
 // Overlap area of pair p's pieces as seen along its normal n_i (the n rule,
@@ -539,9 +543,14 @@ void cluster_pairs(const Scene& scene, State& st) {
       const Vec3 region_a_h = a_from_b.linear().cwiseAbs() * hb + Vec3::Constant(grow_a);
       const Vec3 region_b_c = a_from_b.inverse(Eigen::Isometry) * ca_;
       const Vec3 region_b_h = a_from_b.linear().transpose().cwiseAbs() * ha + Vec3::Constant(grow_b);
+      // The mesh heights take every face in the region, at any angle
+      // (hrt/depth.h HeightMode::mesh): the others go to reach_a / reach_b.
+      const bool mesh = fopt.heights == HeightMode::mesh;
       collect_faces(A, ga, world_from_a.linear(), n, st.piece_list_a, na, region_a_c, region_a_h, st.face_mark_a, stamp,
-                    patch.tris_a);
-      collect_faces(B, gb, rb, -n, st.piece_list_b, nb, region_b_c, region_b_h, st.face_mark_b, stamp, patch.tris_b);
+                    patch.tris_a, mesh ? &patch.reach_a : nullptr);
+      collect_faces(B, gb, rb, -n, st.piece_list_b, nb, region_b_c, region_b_h, st.face_mark_b, stamp, patch.tris_b,
+                    mesh ? &patch.reach_b : nullptr);
+      if (!mesh) patch.reach_a.clear(), patch.reach_b.clear();
       // No face of one side faces the other along n: n is edge-on to the
       // surfaces in contact (frame.cpp refuses the patch).
       patch.facing = !patch.tris_a.empty() && !patch.tris_b.empty();

@@ -124,6 +124,15 @@ double rotated_depth(const double* ha, int S, int b, const double* hb, int N, do
 
 }  // namespace
 
+const std::vector<uint32_t>& height_faces(const std::vector<uint32_t>& tris, const std::vector<uint32_t>& reach,
+                                          HeightMode mode, std::vector<uint32_t>& buf) {
+  if (mode != HeightMode::mesh || reach.empty()) return tris;
+  buf.clear();
+  buf.insert(buf.end(), tris.begin(), tris.end());
+  buf.insert(buf.end(), reach.begin(), reach.end());
+  return buf;
+}
+
 void DepthScratch::reserve(int resolution) {
   if (resolution <= capacity) return;
   const size_t n2 = static_cast<size_t>(resolution) * resolution;
@@ -217,7 +226,10 @@ bool plan_depth(const Model& A, const Pose& pose_a, const Model& B, const Pose& 
   // translations by shifting.
   plan.seeded = opt.heights == HeightMode::surface && !opt.shortcut && A.surface.ready;
   plan.shift_m = 0;
-  if (plan.seeded) {
+  // The mesh mode's height of a texel is a max over its footprint: a
+  // translation by whole texels moves it exactly too.
+  const bool mesh = opt.heights == HeightMode::mesh && !opt.shortcut && A.surface.ready;
+  if (plan.seeded || mesh) {
     const double s = du / cell, rs = std::round(s);
     if (std::abs(s - rs) < 1e-9 && rs >= 1 && rs <= DepthScratch::kReservedBorder) plan.shift_m = static_cast<int>(rs);
     border = plan.shift_m;
@@ -236,22 +248,31 @@ bool plan_depth(const Model& A, const Pose& pose_a, const Model& B, const Pose& 
   // two grid texels of slack) overlaps nowhere at any configuration: it could
   // only change a maximum that is below zero, which makes no force.
   plan.cull_a = plan.cull_b = std::numeric_limits<double>::quiet_NaN();
-  if (opt.heights == HeightMode::surface && A.surface.ready && B.surface.ready) {
+  if ((opt.heights == HeightMode::surface || opt.heights == HeightMode::mesh) && A.surface.ready &&
+      B.surface.ready) {
     const double h0 = n.dot(patch.window.origin);
     double lo_b = kInf, hi_a = -kInf, r_a = 0;
-    for (uint32_t f : tb) {
-      if (f >= B.faces.size()) continue;
-      for (int c = 0; c < 3; ++c)
-        lo_b = std::min(lo_b, n.dot(Tb * B.vertices[B.faces[f][c]]) - h0 - B.surface.faces[f].reach);
-    }
-    for (uint32_t f : ta) {
-      if (f >= A.faces.size()) continue;
-      for (int c = 0; c < 3; ++c) {
-        const Vec3 p = Ta * A.vertices[A.faces[f][c]];
-        hi_a = std::max(hi_a, n.dot(p) - h0 + A.surface.faces[f].reach);
-        r_a = std::max(r_a, (p - c_a).norm() + A.surface.faces[f].reach);
+    const bool with_reach = opt.heights == HeightMode::mesh;
+    auto low_b = [&](const std::vector<uint32_t>& list) {
+      for (uint32_t f : list) {
+        if (f >= B.faces.size()) continue;
+        for (int c = 0; c < 3; ++c)
+          lo_b = std::min(lo_b, n.dot(Tb * B.vertices[B.faces[f][c]]) - h0 - B.surface.faces[f].reach);
       }
-    }
+    };
+    auto high_a = [&](const std::vector<uint32_t>& list) {
+      for (uint32_t f : list) {
+        if (f >= A.faces.size()) continue;
+        for (int c = 0; c < 3; ++c) {
+          const Vec3 p = Ta * A.vertices[A.faces[f][c]];
+          hi_a = std::max(hi_a, n.dot(p) - h0 + A.surface.faces[f].reach);
+          r_a = std::max(r_a, (p - c_a).norm() + A.surface.faces[f].reach);
+        }
+      }
+    };
+    low_b(tb);
+    high_a(ta);
+    if (with_reach) low_b(patch.reach_b), high_a(patch.reach_a);
     const double motion = std::abs(dth) * r_a + 2.0 * cell;
     if (std::isfinite(lo_b) && std::isfinite(hi_a) && std::isfinite(motion)) {
       plan.cull_a = lo_b - motion;
@@ -282,8 +303,8 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   ensure_capacity(scratch, N, border);
   const int S = N + 2 * border;
 
-  const std::vector<uint32_t>& ta = patch.tris_a;
-  const std::vector<uint32_t>& tb = patch.tris_b;
+  const std::vector<uint32_t>& ta = height_faces(patch.tris_a, patch.reach_a, opt.heights, scratch.tris_a);
+  const std::vector<uint32_t>& tb = height_faces(patch.tris_b, patch.reach_b, opt.heights, scratch.tris_b);
   const Vec3 &n = patch.n, &u = patch.u, &v = patch.v;
   rasterize_heights(B, plan.world_from_b, tb, n, u, v, patch.window, 0, false, scratch.hb.data(), opt.heights,
                     plan.cull_b);
@@ -304,8 +325,12 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   bufs[count] = scratch.ha0.data();
   borders[count] = border;
   rendered[count++] = 0;
+  // The mesh mode rasterizes every configuration (its heights are exact,
+  // nothing to re-solve), but its whole-texel translations are shifts too.
+  const bool mesh_shift = !seeded && opt.heights == HeightMode::mesh && shift_m > 0;
   for (int c = 1; c < static_cast<int>(Config::count); ++c) {
     if (opt.shortcut && (c < 5 || c > 8)) continue;
+    if (mesh_shift && c <= 4) continue;
     T[count] = plan.world_from_a[c];
     bufs[count] = scratch.hcfg.data() + (c - 1) * n2;
     rendered[count++] = c;
@@ -325,7 +350,8 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
       resolve_heights(A, T[k], T[0], n, u, v, patch.window, true, bufs[0], border, scratch.seeds, bufs[k]);
     }
   } else {
-    rasterize_heights_multi(A, T, borders, count, ta, n, u, v, patch.window, true, bufs, opt.heights);
+    rasterize_heights_multi(A, T, borders, count, ta, n, u, v, patch.window, true, bufs, opt.heights,
+                            opt.heights == HeightMode::mesh ? plan.cull_a : std::numeric_limits<double>::quiet_NaN());
   }
 
   D[0] = shifted_depth(ha0, S, border, hb, N, 0, 0);
@@ -359,7 +385,7 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   }
   for (int k = 1; k < count; ++k) {
     const int c = rendered[k];
-    if (seeded && shift_m > 0 && c >= 1 && c <= 4) {
+    if ((seeded || mesh_shift) && shift_m > 0 && c >= 1 && c <= 4) {
       const int di = c == 1 ? shift_m : c == 2 ? -shift_m : 0, dj = c == 3 ? shift_m : c == 4 ? -shift_m : 0;
       D[c] = shifted_depth(ha0, S, border, hb, N, di, dj);
     } else {
@@ -390,6 +416,33 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   return out;
 }
 
+double kink_safe_difference(double d_plus, double d_zero, double d_minus, double step, double* straddle) {
+  const double central = (d_plus - d_minus) / (2 * step);  // Eq. 7, bit for bit when no kink is seen
+  if (straddle) *straddle = 0.0;
+  const double s_plus = (d_plus - d_zero) / step, s_minus = (d_zero - d_minus) / step;
+  // delta is a max of functions smooth in A's configuration: a kink only
+  // turns its slope upwards, so a concave or straight triple hides none.
+  const double turn = s_plus - s_minus;
+  if (!(turn > 0)) return central;
+  // The turn against the steeper one-sided slope: a small fraction for
+  // smooth curvature, up to 2 for a kink (a V seen from its bottom).
+  const double q = turn / std::max(std::abs(s_plus), std::abs(s_minus));
+  const double kink = std::clamp((q - kKinkSmoothTurn) / (kKinkStraddleTurn - kKinkSmoothTurn), 0.0, 1.0);
+  if (!(kink > 0)) return central;
+  // The one-sided difference across the kink mixes the two branches'
+  // slopes, so it is the smaller in size: the steeper one is configuration
+  // 0's own branch. r = |central| / (turn / 2) is how clearly it is steeper
+  // (for slopes of opposite signs, the difference of their sizes over
+  // their sum; >= 1 for equal signs): near a V's bottom the side is
+  // undecided and the central difference (0 at a symmetric V) is kept.
+  const double r = std::abs(central) / (0.5 * turn);
+  const double side = std::clamp((r - kKinkUndecided) / (kKinkDecided - kKinkUndecided), 0.0, 1.0);
+  const double blend = kink * side;
+  if (straddle) *straddle = blend;
+  // central + sign(central) turn / 2 is the steeper one-sided difference.
+  return central + std::copysign(blend * 0.5 * turn, central);
+}
+
 void finish_depth_gradient(DepthGradient& out) {
   const double* D = out.delta_at;
   const double du = out.lin_step, dth = out.ang_step;
@@ -402,21 +455,24 @@ void finish_depth_gradient(DepthGradient& out) {
   }
   out.delta = D[0];
   // Central differences (Eq. 7); one-sided when one neighbour is uncovered.
-  auto diff = [&](int plus, int minus, double step) {
+  // The translations' central differences are checked for a kink within the
+  // step (kink_safe_difference; see depth.h).
+  auto diff = [&](int plus, int minus, double step, bool kink_safe) {
     const bool p = D[plus] > -kInf, m = D[minus] > -kInf;
     if (!p) ++out.uncovered_configurations;
     if (!m) ++out.uncovered_configurations;
-    if (p && m) return (D[plus] - D[minus]) / (2 * step);
+    if (p && m) return kink_safe ? kink_safe_difference(D[plus], D[0], D[minus], step)
+                                 : (D[plus] - D[minus]) / (2 * step);
     if (p) return (D[plus] - D[0]) / step;
     if (m) return (D[0] - D[minus]) / step;
     return 0.0;
   };
-  out.grad[0] = diff(1, 2, du);
-  out.grad[1] = diff(3, 4, du);
+  out.grad[0] = diff(1, 2, du, true);
+  out.grad[1] = diff(3, 4, du, true);
   out.grad[2] = 1.0;
-  out.grad[3] = dth > 0 ? diff(5, 6, dth) : 0.0;
-  out.grad[4] = dth > 0 ? diff(7, 8, dth) : 0.0;
-  out.grad[5] = dth > 0 ? diff(9, 10, dth) : 0.0;
+  out.grad[3] = dth > 0 ? diff(5, 6, dth, false) : 0.0;
+  out.grad[4] = dth > 0 ? diff(7, 8, dth, false) : 0.0;
+  out.grad[5] = dth > 0 ? diff(9, 10, dth, false) : 0.0;
 }
 
 }  // namespace hrt

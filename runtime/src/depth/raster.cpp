@@ -139,6 +139,8 @@ struct Placement {
   float* seed_j = nullptr;
   float gx4[4] = {}, gy4[4] = {};  // gx, gy as float4 for HeightSampler::project
   double cull = std::numeric_limits<double>::quiet_NaN();  // see rasterize_heights (depth.h)
+  // HeightMode::mesh: the atlas quads themselves (raster_triangle_mesh).
+  bool mesh = false;
 };
 
 Placement make_placement(const Model& M, const Eigen::Isometry3d& world_from_m, const Vec3& n, const Vec3& u,
@@ -163,6 +165,11 @@ Placement make_placement(const Model& M, const Eigen::Isometry3d& world_from_m, 
   for (int k = 0; k < 4; ++k) {
     pl.gx4[k] = pp.gx4[k];
     pl.gy4[k] = pp.gy4[k];
+  }
+  if (mode == HeightMode::mesh && M.surface.ready) {
+    pl.mesh = true;
+    pl.surface = &M.surface;
+    pl.sample.ok = M.surface.quad_ok.data();
   }
   return pl;
 }
@@ -304,6 +311,208 @@ void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, co
   }
 }
 
+
+// One projected atlas texel of the mesh mode: grid coordinates and height.
+struct MeshCorner {
+  double x, y, h;
+  bool ok;
+};
+
+// Conservative rasterization of one projected triangle (grid coordinates,
+// texel centres at integers, so texel (i, j)'s footprint is [i - 0.5, i +
+// 0.5] x [j - 0.5, j + 0.5]) into pl.out: every texel whose footprint the
+// triangle meets keeps (keep_max) the largest height the triangle's plane
+// reaches over the footprint, at most its highest corner; else the smallest.
+// The footprint test is the separating-axis test of a triangle and a square
+// (the square's two axes by the bounding box, then the three edge normals).
+inline void splat_triangle(const Placement& pl, const MeshCorner& c0, const MeshCorner& c1, const MeshCorner& c2) {
+  const int S = pl.S;
+  const double xmin = std::min({c0.x, c1.x, c2.x}), xmax = std::max({c0.x, c1.x, c2.x});
+  const double ymin = std::min({c0.y, c1.y, c2.y}), ymax = std::max({c0.y, c1.y, c2.y});
+  if (!(xmax >= -0.5) || !(xmin <= S - 0.5) || !(ymax >= -0.5) || !(ymin <= S - 0.5)) return;
+  // Footprints meeting the box: i - 0.5 <= xmax and i + 0.5 >= xmin.
+  const int i0 = std::max(0, static_cast<int>(std::ceil(xmin - 0.5)));
+  const int i1 = std::min(S - 1, static_cast<int>(std::floor(xmax + 0.5)));
+  const int j0 = std::max(0, static_cast<int>(std::ceil(ymin - 0.5)));
+  const int j1 = std::min(S - 1, static_cast<int>(std::floor(ymax + 0.5)));
+  if (i0 > i1 || j0 > j1) return;
+  const bool mx = pl.keep_max;
+  const double hext = mx ? std::max({c0.h, c1.h, c2.h}) : std::min({c0.h, c1.h, c2.h});
+  if (i0 == i1 && j0 == j1) {  // the common case: a quad smaller than a texel
+    double& o = pl.out[static_cast<size_t>(j0) * S + i0];
+    o = mx ? std::max(o, hext) : std::min(o, hext);
+    return;
+  }
+  const double e1x = c1.x - c0.x, e1y = c1.y - c0.y, e2x = c2.x - c0.x, e2y = c2.y - c0.y;
+  const double area2 = e1x * e2y - e2x * e1y;
+  // The plane h = c0.h + a (x - c0.x) + b (y - c0.y); a sliver (edge-on
+  // along n) keeps its extreme corner over its whole box.
+  double a = 0, b = 0;
+  bool plane = std::abs(area2) > 1e-12;
+  if (plane) {
+    const double inv = 1.0 / area2;
+    const double dh1 = c1.h - c0.h, dh2 = c2.h - c0.h;
+    a = (dh1 * e2y - dh2 * e1y) * inv;
+    b = (dh2 * e1x - dh1 * e2x) * inv;
+    plane = std::isfinite(a) && std::isfinite(b);
+  }
+  // Edge k from corner k to corner k + 1 with the inward normal (ny, -nx)
+  // times the orientation: inside where E_k(x, y) >= 0. A square meets the
+  // triangle's half-plane when E_k at its corner farthest inside is >= 0,
+  // i.e. E_k(centre) + 0.5 (|gx| + |gy|) >= 0.
+  const MeshCorner* C[3] = {&c0, &c1, &c2};
+  const double sgn = area2 >= 0 ? 1.0 : -1.0;
+  double gx[3], gy[3], g0[3], reach[3];
+  for (int k = 0; k < 3; ++k) {
+    const MeshCorner& p = *C[k];
+    const MeshCorner& q = *C[(k + 1) % 3];
+    gx[k] = -sgn * (q.y - p.y);
+    gy[k] = sgn * (q.x - p.x);
+    g0[k] = -(gx[k] * p.x + gy[k] * p.y);
+    reach[k] = 0.5 * (std::abs(gx[k]) + std::abs(gy[k])) + 1e-9 * (std::abs(g0[k]) + 1.0);
+  }
+  const double slack = 0.5 * (std::abs(a) + std::abs(b));
+  for (int j = j0; j <= j1; ++j) {
+    double* row = pl.out + static_cast<size_t>(j) * S;
+    for (int i = i0; i <= i1; ++i) {
+      bool meets = true;
+      for (int k = 0; k < 3 && meets; ++k) meets = gx[k] * i + gy[k] * j + g0[k] + reach[k] >= 0;
+      if (!meets) continue;
+      double h = hext;
+      if (plane) {
+        const double hc = c0.h + a * (i - c0.x) + b * (j - c0.y);
+        h = mx ? std::min(hext, hc + slack) : std::max(hext, hc - slack);
+      }
+      row[i] = mx ? std::max(row[i], h) : std::min(row[i], h);
+    }
+  }
+}
+
+// HeightMode::mesh for coarse face f: every usable atlas quad whose centre
+// lies within one atlas texel of the face's UV triangle (the face's own
+// texels and the seam's: neighbouring faces of a chart share quads across
+// their edge, harmlessly visited twice; across a chart border the gutter's
+// quads close the gap), split along its (i, j)-(i + 1, j + 1) diagonal into
+// two triangles on the atlas positions, conservatively rasterized.
+//
+// Why hand-written: this is what a GPU does with a grid mesh and texel
+// fetches, but the CPU backend must agree with the GL one texel for texel
+// and needs conservative coverage (no GL 4.5 core feature gives it).
+void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const double* x, const double* y,
+                          const double* ax, const double* ay) {
+  const int S = pl.S;
+  const SurfaceMap::Face& sf = pl.surface->faces[f];
+  // Whole-face culls: the face's full surface lies within `reach` of it.
+  const double R = sf.reach / pl.cell + 1.0;  // grid texels, plus a texel for the footprints
+  if (std::max({x[0], x[1], x[2]}) + R < -0.5 || std::min({x[0], x[1], x[2]}) - R > S - 0.5 ||
+      std::max({y[0], y[1], y[2]}) + R < -0.5 || std::min({y[0], y[1], y[2]}) - R > S - 0.5)
+    return;
+  double hlo = kInf, hhi = -kInf;
+  for (int c = 0; c < 3; ++c) {
+    const double h = pl.nobj.dot(M.vertices[M.faces[f][c]]);
+    hlo = std::min(hlo, h);
+    hhi = std::max(hhi, h);
+  }
+  hlo += pl.oh - sf.reach;
+  hhi += pl.oh + sf.reach;
+  if (pl.keep_max ? hhi < pl.cull : hlo > pl.cull) return;  // cannot matter (NaN: never)
+
+  const Atlas& at = M.atlas;
+  const int W = at.width, H = at.height;
+  if (W < 2 || H < 2) return;
+  // Quads (i, j) (top-left texel) whose centre (i + 0.5, j + 0.5) is within
+  // one texel of the UV triangle (edge distances in atlas texels).
+  const double e1x = ax[1] - ax[0], e1y = ay[1] - ay[0], e2x = ax[2] - ax[0], e2y = ay[2] - ay[0];
+  const double area2 = e1x * e2y - e2x * e1y;
+  if (!(std::abs(area2) > 1e-12)) return;
+  const double sgn = area2 > 0 ? 1.0 : -1.0;
+  double gx[3], gy[3], g0[3];
+  for (int k = 0; k < 3; ++k) {
+    const int k1 = (k + 1) % 3;
+    double nx = -sgn * (ay[k1] - ay[k]), ny = sgn * (ax[k1] - ax[k]);
+    const double len = std::hypot(nx, ny);
+    nx /= len, ny /= len;
+    gx[k] = nx, gy[k] = ny, g0[k] = -(nx * ax[k] + ny * ay[k]) + 1.0;  // >= 0: within one texel inside
+  }
+  double alo_x = std::min({ax[0], ax[1], ax[2]}), ahi_x = std::max({ax[0], ax[1], ax[2]});
+  double alo_y = std::min({ay[0], ay[1], ay[2]}), ahi_y = std::max({ay[0], ay[1], ay[2]});
+  {
+    // Only the part of the face whose coarse points project within R of the
+    // grid can reach it (a full-surface point lies within `reach` of its
+    // coarse point): the grid grown by R, taken back to atlas coordinates by
+    // the face's affine map (grid -> atlas; a face that is not edge-on along
+    // n), bounds the quads worth visiting. A large face (a CAD part's flat
+    // side) under a small window is then visited only where it matters.
+    const double g1x = x[1] - x[0], g1y = y[1] - y[0], g2x = x[2] - x[0], g2y = y[2] - y[0];
+    const double garea = g1x * g2y - g2x * g1y;
+    const double glen2 = std::max({g1x * g1x + g1y * g1y, g2x * g2x + g2y * g2y, 1e-300});
+    if (std::abs(garea) > 1e-3 * glen2) {  // within ~0.06 degrees of edge-on: the whole face
+      const double inv = 1.0 / garea;
+      const double jxx = (e1x * g2y - e2x * g1y) * inv, jxy = (e2x * g1x - e1x * g2x) * inv;
+      const double jyx = (e1y * g2y - e2y * g1y) * inv, jyy = (e2y * g1x - e1y * g2x) * inv;
+      double lo_x = kInf, hi_x = -kInf, lo_y = kInf, hi_y = -kInf;
+      for (int k = 0; k < 4; ++k) {
+        const double gx_ = ((k & 1) ? S - 0.5 + R : -0.5 - R) - x[0];
+        const double gy_ = ((k & 2) ? S - 0.5 + R : -0.5 - R) - y[0];
+        const double px = ax[0] + jxx * gx_ + jxy * gy_, py = ay[0] + jyx * gx_ + jyy * gy_;
+        lo_x = std::min(lo_x, px), hi_x = std::max(hi_x, px);
+        lo_y = std::min(lo_y, py), hi_y = std::max(hi_y, py);
+      }
+      alo_x = std::max(alo_x, lo_x), ahi_x = std::min(ahi_x, hi_x);
+      alo_y = std::max(alo_y, lo_y), ahi_y = std::min(ahi_y, hi_y);
+      if (!(alo_x <= ahi_x + 2) || !(alo_y <= ahi_y + 2)) return;
+    }
+  }
+  // Clamped in double first: a far face maps the grid to huge atlas coordinates.
+  auto clampi = [](double v, int lo, int hi) {
+    return static_cast<int>(std::clamp(v, static_cast<double>(lo) - 1.0, static_cast<double>(hi) + 1.0));
+  };
+  const int qi0 = std::max(0, clampi(std::floor(alo_x - 1.5), 0, W));
+  const int qi1 = std::min(W - 2, clampi(std::ceil(ahi_x + 0.5), 0, W));
+  const int qj0 = std::max(0, clampi(std::floor(alo_y - 1.5), 0, H));
+  const int qj1 = std::min(H - 2, clampi(std::ceil(ahi_y + 0.5), 0, H));
+  if (qi0 > qi1 || qj0 > qj1) return;
+  const int nq = qi1 - qi0 + 2;  // texels per row the quads read
+  // Two rows of projected texels. thread_local: grows to the widest face
+  // once per thread, so the frame loop does not allocate afterwards.
+  thread_local std::vector<MeshCorner> rows;
+  if (rows.size() < 2 * static_cast<size_t>(nq)) rows.resize(2 * static_cast<size_t>(nq));
+  MeshCorner* top = rows.data();
+  MeshCorner* bot = rows.data() + nq;
+  const float* rgba = at.rgba.data();
+  const size_t stride = static_cast<size_t>(W) * 4;
+  auto project_row = [&](int j, MeshCorner* out) {
+    const float* t = rgba + static_cast<size_t>(j) * stride + static_cast<size_t>(qi0) * 4;
+    for (int k = 0; k < nq; ++k, t += 4) {
+      const double px = t[0], py = t[1], pz = t[2];
+      MeshCorner& c = out[k];
+      c.x = pl.gx[0] * px + pl.gx[1] * py + pl.gx[2] * pz + pl.ox;
+      c.y = pl.gy[0] * px + pl.gy[1] * py + pl.gy[2] * pz + pl.oy;
+      c.h = pl.nobj[0] * px + pl.nobj[1] * py + pl.nobj[2] * pz + pl.oh;
+      c.ok = std::isfinite(c.x) && std::isfinite(c.y) && std::isfinite(c.h);
+    }
+  };
+  project_row(qj0, top);
+  const uint8_t* ok = pl.surface->quad_ok.data();
+  for (int j = qj0; j <= qj1; ++j) {
+    project_row(j + 1, bot);
+    const double cy = j + 0.5;
+    for (int i = qi0; i <= qi1; ++i) {
+      if (!ok[static_cast<size_t>(j) * W + i]) continue;
+      const double cx = i + 0.5;
+      bool in = true;
+      for (int k = 0; k < 3 && in; ++k) in = gx[k] * cx + gy[k] * cy + g0[k] >= 0;
+      if (!in) continue;
+      const int k = i - qi0;
+      const MeshCorner &c00 = top[k], &c10 = top[k + 1], &c01 = bot[k], &c11 = bot[k + 1];
+      if (!(c00.ok && c10.ok && c01.ok && c11.ok)) continue;
+      splat_triangle(pl, c00, c10, c11);
+      splat_triangle(pl, c00, c11, c01);
+    }
+    std::swap(top, bot);
+  }
+}
+
 // Rasterizes coarse triangle f of M under placement pl into pl.out.
 void raster_triangle(const Model& M, uint32_t f, const Placement& pl) {
   const int S = pl.S;
@@ -320,6 +529,10 @@ void raster_triangle(const Model& M, uint32_t f, const Placement& pl) {
   }
   const double e1x = x[1] - x[0], e1y = y[1] - y[0];
   const double e2x = x[2] - x[0], e2y = y[2] - y[0];
+  if (pl.mesh) {  // any face, edge-on along n or not: its full surface need not be
+    raster_triangle_mesh(M, f, pl, x, y, ax, ay);
+    return;
+  }
   const double area2 = e1x * e2y - e2x * e1y;
   if (std::abs(area2) < kMinArea2) return;
   if (pl.surface) {
@@ -464,7 +677,7 @@ void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m, co
 
 void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from_m, const int* borders, int count,
                              const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
-                             const Window& w, bool keep_max, double* const* out, HeightMode mode) {
+                             const Window& w, bool keep_max, double* const* out, HeightMode mode, double cull) {
   constexpr int kMax = 16;
   for (int k = 0; k < count; ++k) {
     const int S = std::max(w.resolution + 2 * (borders ? borders[k] : 0), 0);
@@ -477,8 +690,10 @@ void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from
   for (int k0 = 0; k0 < count; k0 += kMax) {
     const int m = std::min(kMax, count - k0);
     Placement pl[kMax] = {};
-    for (int k = 0; k < m; ++k)
+    for (int k = 0; k < m; ++k) {
       pl[k] = make_placement(M, world_from_m[k0 + k], n, u, v, w, borders ? borders[k0 + k] : 0, keep_max, out[k0 + k], mode);
+      pl[k].cull = cull;
+    }
     for (uint32_t f : tris) {
       if (f >= M.faces.size()) continue;
       for (int k = 0; k < m; ++k) raster_triangle(M, f, pl[k]);
@@ -548,10 +763,10 @@ double directional_depth(const Model& A, const Eigen::Isometry3d& world_from_a, 
                          bool* covered, HeightMode mode) {
   const int N = patch.window.resolution;
   if (scratch.capacity < N) scratch.reserve(N);
-  rasterize_heights(B, world_from_b, patch.tris_b, patch.n, patch.u, patch.v, patch.window, 0, false,
-                    scratch.hb.data(), mode);
-  rasterize_heights(A, world_from_a, patch.tris_a, patch.n, patch.u, patch.v, patch.window, 0, true,
-                    scratch.ha.data(), mode);
+  rasterize_heights(B, world_from_b, height_faces(patch.tris_b, patch.reach_b, mode, scratch.tris_b), patch.n,
+                    patch.u, patch.v, patch.window, 0, false, scratch.hb.data(), mode);
+  rasterize_heights(A, world_from_a, height_faces(patch.tris_a, patch.reach_a, mode, scratch.tris_a), patch.n,
+                    patch.u, patch.v, patch.window, 0, true, scratch.ha.data(), mode);
   double d = -kInf;
   const size_t count = static_cast<size_t>(N) * N;
   const double* ha = scratch.ha.data();

@@ -764,6 +764,9 @@ void GlDepthBackend::evaluate(const DepthJob* jobs, int count, const ForceOption
   if (opt.shortcut)
     throw std::invalid_argument(
         "the GL backend does not implement the Sec. 5.2 shortcut (--shortcut / shortcut = true); use the CPU backend");
+  if (opt.heights == HeightMode::mesh)
+    throw std::invalid_argument(
+        "the GL backend does not implement heights = \"mesh\" (--heights mesh); use the CPU backend");
   const auto t0 = Clock::now();
   const uint64_t growths = I.stats.buffer_growths;
   I.stats = GlDepthStats{};

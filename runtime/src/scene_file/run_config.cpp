@@ -625,8 +625,12 @@ RunConfig load_run_config(const std::string& path) {
     // then keeps to the CPU backend.)
     if (f.shortcut && c.backend == "gl")
       s.fail("shortcut", "the Sec. 5.2 shortcut is implemented by the CPU backend only, and run.backend is \"gl\"");
-    f.heights = s.choice("heights", "surface", {"surface", "coarse"}) == "coarse" ? HeightMode::coarse
-                                                                                   : HeightMode::surface;
+    {
+      const std::string h = s.choice("heights", "surface", {"surface", "coarse", "mesh"});
+      f.heights = h == "coarse" ? HeightMode::coarse : h == "mesh" ? HeightMode::mesh : HeightMode::surface;
+    }
+    if (f.heights == HeightMode::mesh && c.backend == "gl")
+      s.fail("heights", "heights = \"mesh\" is implemented by the CPU backend only, and run.backend is \"gl\"");
     c.scene.collision.margin = s.range("margin", c.scene.collision.margin, kMargin);
     ClusterOptions& cl = c.scene.cluster;
     cl.max_patches = s.integer("max_patches", cl.max_patches, 1, 4096);
