@@ -14,7 +14,7 @@ APT_PACKAGES := build-essential cmake pkg-config python3-venv \
   clang libclang-rt-14-dev \
   chromium chromium-driver
 
-.PHONY: setup apt venv runtime test test-py test-cpp demo bench clean
+.PHONY: setup apt venv runtime test test-py test-slow test-cpp demo bench clean
 
 setup: apt venv runtime
 
@@ -54,7 +54,13 @@ test-cpp:
 # The pytest suite drives the test plugins (runtime/tests/plugins) through `hrt run`.
 test-py:
 	cmake --build $(BUILD) -j $(JOBS) --target hrt_test_plugins
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -m "not slow"
+
+# The sweeps behind the slow marker (bakes of the largest models, the
+# 20-orientation thin-feature sweep): minutes each, not in `make test`.
+test-slow: setup
+	cmake --build $(BUILD) -j $(JOBS) --target hrt_test_plugins
+	$(PY) -m pytest -q -m slow
 
 demo: setup
 	bash examples/demo.sh
