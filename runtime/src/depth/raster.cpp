@@ -183,6 +183,23 @@ inline void write_seed(const Placement& pl, size_t k, double a_x, double a_y, do
   J[3] = static_cast<float>(jyy);
 }
 
+// The heights of face f's full-surface points lie within the surface map's
+// reach of its corners': [hlo, hhi] (relative to n . origin). True when the
+// whole range is on the far side of pl.cull (the face cannot matter; a NaN
+// cull never culls).
+inline bool culled_by_height(const Model& M, uint32_t f, const Placement& pl, double& hlo, double& hhi) {
+  const double reach = pl.surface->faces[f].reach;
+  hlo = kInf, hhi = -kInf;
+  for (int c = 0; c < 3; ++c) {
+    const double h = pl.nobj.dot(M.vertices[M.faces[f][c]]);
+    hlo = std::min(hlo, h);
+    hhi = std::max(hhi, h);
+  }
+  hlo += pl.oh - reach;
+  hhi += pl.oh + reach;
+  return pl.keep_max ? hhi < pl.cull : hlo > pl.cull;
+}
+
 // The surface mode for a triangle whose atlas points can lie up to L grid
 // texels beside their coarse point's column (L > the lateral tolerance).
 //
@@ -231,17 +248,8 @@ void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, co
   // |det|): the ownership margin.
   const double det = std::abs(dax_dx * day_dy - dax_dy * day_dx);
   const double margin = (det > 0 ? 1.0 / std::sqrt(det) : 1.0) + tol;
-  // The heights of f's points on this triangle lie within reach of its corners'.
-  const SurfaceMap::Face& sf = pl.surface->faces[f];
-  double hlo = kInf, hhi = -kInf;
-  for (int c = 0; c < 3; ++c) {
-    const double h = pl.nobj.dot(M.vertices[M.faces[f][c]]);
-    hlo = std::min(hlo, h);
-    hhi = std::max(hhi, h);
-  }
-  hlo += pl.oh - sf.reach;
-  hhi += pl.oh + sf.reach;
-  if (pl.keep_max ? hhi < pl.cull : hlo > pl.cull) return;  // cannot matter (NaN: never)
+  double hlo, hhi;
+  if (culled_by_height(M, f, pl, hlo, hhi)) return;
   const HeightSampler& sample = pl.sample;
   auto bary = [&](double px, double py, double* b) {
     const double dx = px - x[0], dy = py - y[0];
@@ -407,15 +415,8 @@ void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const
   if (std::max({x[0], x[1], x[2]}) + R < -0.5 || std::min({x[0], x[1], x[2]}) - R > S - 0.5 ||
       std::max({y[0], y[1], y[2]}) + R < -0.5 || std::min({y[0], y[1], y[2]}) - R > S - 0.5)
     return;
-  double hlo = kInf, hhi = -kInf;
-  for (int c = 0; c < 3; ++c) {
-    const double h = pl.nobj.dot(M.vertices[M.faces[f][c]]);
-    hlo = std::min(hlo, h);
-    hhi = std::max(hhi, h);
-  }
-  hlo += pl.oh - sf.reach;
-  hhi += pl.oh + sf.reach;
-  if (pl.keep_max ? hhi < pl.cull : hlo > pl.cull) return;  // cannot matter (NaN: never)
+  double hlo, hhi;
+  if (culled_by_height(M, f, pl, hlo, hhi)) return;
 
   const Atlas& at = M.atlas;
   const int W = at.width, H = at.height;
