@@ -910,7 +910,20 @@ def write_atlas_exr(path: str | os.PathLike, atlas: np.ndarray, compression: str
     header = {"compression": _compression_enum(compression), "type": ex.scanlineimage}
     # A fresh dict each time: OpenEXR.File replaces its values by Channel objects.
     pixels = {c: np.ascontiguousarray(a[:, :, k]) for k, c in enumerate(channels)}
-    ex.File(header, pixels).write(str(path))
+    try:
+        ex.File(header, pixels).write(str(path))
+    except RuntimeError as e:
+        # The OpenEXR binding reports a failed write (a full disk, a quota, an I/O
+        # error) as RuntimeError with the system's message in its text; the writers'
+        # callers turn OSError into the one "cannot write" exit. Anything else (a bad
+        # header) stays what it is.
+        text = str(e)
+        for code in (errno.ENOSPC, errno.EDQUOT, errno.EIO, errno.EROFS, errno.EFBIG):
+            if os.strerror(code) in text:
+                raise OSError(code, os.strerror(code), str(path)) from None
+        if "Failed to write" in text or "Cannot open" in text:
+            raise OSError(errno.EIO, text, str(path)) from None
+        raise
 
 
 def read_atlas_exr(path: str | os.PathLike) -> np.ndarray:
@@ -1084,7 +1097,9 @@ def write_bundle(path: str | os.PathLike, data: BundleData, *, force: bool = Fal
         try:
             manifest = _write_files(tmp, data, compression)
         except OSError as e:
-            raise OutputUnwritableError(f"cannot write {e.filename or tmp}: {e.strerror}") from None
+            # Named by the output (the temporary directory is gone by the time it is read).
+            what = f" ({Path(e.filename).name})" if e.filename else ""
+            raise OutputUnwritableError(f"cannot write {out}{what}: {e.strerror}") from None
         problems = validate_bundle(tmp)
         if problems:
             raise BakeFailedError(f"the bundle for {out.name} would be invalid: {problems[0].cls}: "

@@ -111,3 +111,23 @@ def test_bake_errors_name_the_input(tmp_path):
     assert r.returncode != 0
     line = [ln for ln in r.stderr.splitlines() if ln.startswith("hbake: error: ")][-1]
     assert "flat.obj" in line, line
+
+
+def test_a_full_disk_is_the_unwritable_output_exit(tmp_path):
+    """A write that fails for lack of room (here a file-size limit, which fails the write as
+    a full disk does: EFBIG instead of ENOSPC; the signal it raises is ignored, as a
+    shell's `trap '' XFSZ` does) is exit 6 with one line naming the output, and leaves
+    nothing behind: no bundle, no temporary directory."""
+    src = tmp_path / "src"
+    src.mkdir()
+    mesh = trimesh.creation.icosphere(subdivisions=4, radius=0.02)
+    mesh.export(src / "ball.ply")
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    out = out_dir / "ball.hbundle"
+    r = subprocess.run(["bash", "-c", 'ulimit -f 64; trap "" XFSZ; exec "$@"', "bash",
+                        str(REPO / ".venv" / "bin" / "hbake"), "bake", str(src / "ball.ply"), "-o", str(out),
+                        "--units", "m", "-q"],
+                       capture_output=True, text=True, timeout=600, env=dict(os.environ, NO_COLOR="1"))
+    one_line(r, 6, out, "File too large")
+    assert not any(out_dir.iterdir()), list(out_dir.iterdir())
