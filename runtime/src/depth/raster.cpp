@@ -507,6 +507,20 @@ void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const
       const int k = i - qi0;
       const MeshCorner &c00 = top[k], &c10 = top[k + 1], &c01 = bot[k], &c11 = bot[k + 1];
       if (!(c00.ok && c10.ok && c01.ok && c11.ok)) continue;
+      // A quad inside one texel's square (the common case where the atlas is
+      // finer than the grid): its highest corner is the highest point of its
+      // two triangles there, one update.
+      {
+        const double lx = std::min({c00.x, c10.x, c01.x, c11.x}), hx = std::max({c00.x, c10.x, c01.x, c11.x});
+        const double ly = std::min({c00.y, c10.y, c01.y, c11.y}), hy = std::max({c00.y, c10.y, c01.y, c11.y});
+        if (hx < -0.5 || lx > S - 0.5 || hy < -0.5 || ly > S - 0.5) continue;  // beside the grid
+        const double ci = std::floor(lx + 0.5), cj = std::floor(ly + 0.5);
+        if (hx < ci + 0.5 && hy < cj + 0.5 && ci >= 0 && cj >= 0 && ci < S && cj < S) {
+          double& o = pl.out[static_cast<size_t>(cj) * S + static_cast<size_t>(ci)];
+          o = pl.keep_max ? std::max({o, c00.h, c10.h, c01.h, c11.h}) : std::min({o, c00.h, c10.h, c01.h, c11.h});
+          continue;
+        }
+      }
       splat_triangle(pl, c00, c10, c11);
       splat_triangle(pl, c00, c11, c01);
     }
