@@ -512,6 +512,15 @@ int run(const RunFlags& f) {
                 static_cast<unsigned long long>(st.watchdog_events),
                 static_cast<unsigned long long>(state.warnings.refused_patches),
                 static_cast<unsigned long long>(state.warnings.deep_fallbacks));
+    // What the two counters mean, once, where they are not zero (a new user reads
+    // "refused" as an error; it is the safety rule working).
+    if (state.warnings.refused_patches > 0)
+      std::printf("    refused: patch-frames whose normal or depth the convex pieces contradict (an edge-on or "
+                  "wrong-way normal, heights that are not this contact's); they gave no force, by design "
+                  "(docs/hrt-query-json.md, `refused`)\n");
+    if (state.warnings.deep_fallbacks > 0)
+      std::printf("    deep fallbacks: frames where the probe was deeper than a patch's force can be trusted; a "
+                  "penalty along the pieces' penetration pushed it out instead\n");
     if (backend.gl)
       std::printf("  depth backend: %s; GL total median %.1f us, p99 %.1f us over %zu frames with patches\n",
                   backend.describe().c_str(), median(gl_total_us), percentile(gl_total_us, 0.99), gl_total_us.size());
