@@ -233,9 +233,25 @@ DEFAULT_PRESERVE_PROXY_FACES = 0
 #: chart by up to 2.7 texels (measured on the wrinkled torus at 2,000 triangles), so 6
 #: keeps it 3 texels clear of the next chart (the cage route's default is 2).
 DEFAULT_PRESERVE_PADDING = 6
-#: meshoptimizer's weight of the UVs (in meters on the surface) against positions: 1
-#: weighs a texel of UV error like a texel of position error.
+#: meshoptimizer's weight of the UVs (as lengths on the surface, with the part scaled to
+#: PRESERVE_FRAME_DIAGONAL) against positions: 1 weighs a texel of UV error like a texel
+#: of position error on a part whose largest side is that diagonal.
 DEFAULT_PRESERVE_UV_WEIGHT = 1.0
+#: The preserve route collapses its proxy and charts it (pymeshlab, xatlas) with the part
+#: scaled to this bounding-box diagonal (the factor is not a power of two: it is exactly
+#: diagonal / this), then scales the proxy back and multiplies the texel density by the
+#: same factor. Both libraries have absolute thresholds that SIMPLIFY_MIN_DIAGONAL and
+#: XATLAS_MIN_MEDIAN_FACE_AREA only keep away from small parts; above them the proxy
+#: still changed with the unit: hammer_scan.obj (diagonal 8.78 file units) collapsed at
+#: 0.0878 m (--units cm) gave another proxy than at 0.223, 8.78 or (at 4x) 0.0351 m, 18
+#: charts instead of 16 (one a single triangle), and its bake was refused. Scaled to one
+#: diagonal, the four units give the same proxy faces (vertices within 1e-16 diagonal).
+#: meshoptimizer's collapse sees the part in the same frame (its UV weight against
+#: positions depends on the unit of both). 1 m: within the range where pymeshlab's
+#: collapse was seen to be stable (SIMPLIFY_MIN_DIAGONAL), large enough that xatlas's
+#: FLT_EPSILON-scale tolerances stay far below a proxy face, and close to the size at
+#: which the UV weight was tuned (the wrinkled torus, 0.2 m, given in m).
+PRESERVE_FRAME_DIAGONAL = 1.0
 #: Closest faces are searched among this many nearest centroids (exact on the proxy's and
 #: the full mesh's well-shaped triangles; more costs time linearly).
 PRESERVE_NEAREST_FACES = 16

@@ -6,7 +6,9 @@ mesh's UVs index an atlas rasterized from the full surface itself (no rays from 
 cage). Data flow (:func:`bake_preserve`, the route's one public entry):
 
     proxy      full mesh                    -> low-pass proxy (the simplify stage, at
-                                               ``preserve.proxy_faces``)
+                                               ``preserve.proxy_faces``; this stage and the
+                                               next three see the part scaled to a fixed
+                                               diagonal, so the unit changes nothing)
     charts     proxy                        -> xatlas charts and packing (the
                                                parameterize stage, unchanged)
     transfer   full mesh + proxy charts     -> per-corner UVs of the full mesh: each full
@@ -243,9 +245,15 @@ def pinched_vertices(faces: np.ndarray) -> np.ndarray:
 def simplify_preserving(positions, split_faces, uv_split, target: int, *, lock: np.ndarray,
                         uv_weight: float):
     """meshoptimizer's attribute-aware collapse of the seam-split mesh to at most
-    ``target`` triangles (module doc). ``uv_split`` (n, 2) in meters on the surface, so
-    that ``uv_weight`` 1 weighs a UV error like a position error. Returns (faces (K, 3)
-    into the split vertices, meshoptimizer's relative error)."""
+    ``target`` triangles (module doc). ``uv_split`` (n, 2) as lengths on the surface in
+    the unit of ``positions``. meshoptimizer rescales the positions by their largest
+    bounding-box side but takes the attributes as given (times ``uv_weight``), so the
+    weight of a UV error against a position error of the same length is ``uv_weight``
+    times that side in this unit: the caller passes the part scaled to
+    PRESERVE_FRAME_DIAGONAL (bake_preserve), so that it does not depend on the unit the
+    part came in (in meters it weighed 1000 times more for a part given in m than for
+    the same part given in mm). Returns (faces (K, 3) into the split vertices,
+    meshoptimizer's relative error)."""
     import ctypes
 
     try:
@@ -324,6 +332,47 @@ def uv_containment(coarse_uvs, coarse_chart, full_uvs, full_chart, W: int, H: in
 # ------------------------------------------------------------------------------------
 # the atlas, rasterized from the full surface
 # ------------------------------------------------------------------------------------
+def degenerate_footprints(uvs, tri_of, bary, dist, W: int, H: int) -> int:
+    """Bake the footprints of the coarse UV triangles of no area too, in place.
+
+    assign_texels skips a UV triangle of no area, as the lookups on it read the texels of
+    the triangles around it. Here that fails on a chart's outline: a coarse triangle whose
+    three seam vertices fit_seams put on one straight outline segment (an ear of the
+    full mesh's border kept by the collapse) is a segment in UV with no triangle of its
+    chart beside it, and its lookups read texels nobody baked, farther than the gutter
+    from any covered texel. Texels within BAKE_BORDER_TEXELS of such a segment are baked
+    from it when no triangle claimed them (a preserve texel's value depends only on its
+    chart), never as covered (barycentrics -1), and every texel's distance becomes the
+    nearer of the two, so fill_gutter widens the gutter over all of them. Returns the
+    number of texels added."""
+    from hbake.atlas import _segment_distance_2d
+
+    p = texel_coordinates(uvs, W, H)
+    e = np.roll(p, -1, axis=1) - p
+    twice_area = np.abs(e[:, 0, 0] * e[:, 1, 1] - e[:, 0, 1] * e[:, 1, 0])
+    r = C.BAKE_BORDER_TEXELS
+    added = 0
+    for t in np.nonzero(twice_area <= C.UV_DEGENERATE_TEXELS2)[0]:
+        lo = np.maximum(np.floor(p[t].min(axis=0) - r).astype(np.int64), 0)
+        hi = np.minimum(np.ceil(p[t].max(axis=0) + r).astype(np.int64), [W - 1, H - 1])
+        if np.any(hi < lo):
+            continue
+        jj, ii = np.mgrid[lo[1]:hi[1] + 1, lo[0]:hi[0] + 1]
+        i, j = ii.ravel(), jj.ravel()
+        q = np.stack([i, j], axis=1).astype(np.float64)
+        n = len(q)
+        d = _segment_distance_2d(q, np.broadcast_to(p[t, 0], (n, 2)), np.broadcast_to(p[t, 1], (n, 2)),
+                                 np.broadcast_to(p[t, 2], (n, 2)))
+        near = d <= r
+        i, j, d = i[near], j[near], d[near]
+        free = tri_of[j, i] < 0
+        tri_of[j[free], i[free]] = t
+        bary[j[free], i[free]] = -1.0
+        added += int(free.sum())
+        dist[j, i] = np.minimum(dist[j, i], d)
+    return added
+
+
 def rasterize_full(coarse_vertices, coarse_faces, coarse_uvs, coarse_chart, full_vertices,
                    full_faces, full_uvs, full_chart, W: int, H: int, atlas_settings,
                    progress=None) -> BakedAtlas:
@@ -345,6 +394,7 @@ def rasterize_full(coarse_vertices, coarse_faces, coarse_uvs, coarse_chart, full
     FF = np.asarray(full_faces, dtype=np.int64)
     uv64 = np.asarray(coarse_uvs, dtype=np.float64)
     tri_of, bary, dist = assign_texels(uv64, W, H)
+    degenerate_footprints(uv64, tri_of, bary, dist, W, H)
     baked = tri_of >= 0
     ys, xs = np.nonzero(baked)
     t_ids = tri_of[ys, xs]
@@ -433,6 +483,17 @@ def rasterize_full(coarse_vertices, coarse_faces, coarse_uvs, coarse_chart, full
 # ------------------------------------------------------------------------------------
 # the route
 # ------------------------------------------------------------------------------------
+def frame_scale(vertices, faces) -> float:
+    """The factor that brings the bounding-box diagonal of the used vertices to
+    PRESERVE_FRAME_DIAGONAL (1 for a mesh without extent)."""
+    F = np.asarray(faces, dtype=np.int64)
+    if len(F) == 0:
+        return 1.0
+    v = np.asarray(vertices, dtype=np.float64)[np.unique(F)]
+    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    return C.PRESERVE_FRAME_DIAGONAL / diag if diag > 0 else 1.0
+
+
 def bake_preserve(full_vertices, full_faces, settings, *, input_name: str = "input",
                   input_closed: bool | None = None, stage=None, warn=None) -> PreserveResult:
     """Coarse mesh, its UVs and the atlas by the parameterization-preserving route.
@@ -453,15 +514,26 @@ def bake_preserve(full_vertices, full_faces, settings, *, input_name: str = "inp
     if input_closed is None:
         input_closed = is_closed(FF)
     proxy_faces = ps.proxy_faces or target
+    # Every choice of the route (proxy, charts, their transfer, the collapse) is made on
+    # the part scaled to PRESERVE_FRAME_DIAGONAL (constants say why: pymeshlab's collapse
+    # and xatlas have absolute thresholds, so the same part given in cm and in m got other
+    # proxies and charts) and rounded to float32 there: the same file in two units then
+    # gives the same numbers (the float64 products differ by an ulp, float32 hides it),
+    # hence the same coarse mesh. The atlas's values and the coarse vertices come from FV.
+    k = frame_scale(FV, FF)
+    FVk = (FV * k).astype(np.float32).astype(np.float64)
     with _stage("proxy"):
-        proxy = simplify(FV, FF, dataclasses.replace(settings.simplify, target_faces=proxy_faces),
+        proxy = simplify(FVk, FF, dataclasses.replace(settings.simplify, target_faces=proxy_faces),
                          input_closed=input_closed)
     with _stage("charts"):
         pparam = parameterize(proxy.vertices, proxy.faces,
                               dataclasses.replace(settings.parameterize, padding=ps.padding))
+        # texels per meter: a meter is k units of the scaled frame
+        tpu_k = pparam.texels_per_unit
+        pparam = dataclasses.replace(pparam, texels_per_unit=tpu_k * k)
         W, H = pparam.width, pparam.height
     with _stage("transfer"):
-        full_uvs, full_chart = transfer_charts(FV, FF, proxy.vertices, proxy.faces, pparam.uvs)
+        full_uvs, full_chart = transfer_charts(FVk, FF, proxy.vertices, proxy.faces, pparam.uvs)
         sf, s_vert, s_chart = split_seams(FF, full_chart)
         n = len(s_vert)
         uv_split = np.zeros((n, 2))
@@ -477,11 +549,10 @@ def bake_preserve(full_vertices, full_faces, settings, *, input_name: str = "inp
             uv_split, lock = fit_seams(sf, s_chart, uv_split, seg_chart, segments, border)
             full_uvs = uv_split[sf]
     with _stage("simplify"):
-        # UVs in meters on the surface (the atlas's texel size times texels), so the
-        # attribute weight compares like with like
-        tpu = pparam.texels_per_unit
-        scale = 1.0 / tpu if tpu > 0 else 1.0
-        uv_m = uv_split * np.array([W, H]) * scale
+        # UVs as lengths on the surface in the frame (texels over texels per frame unit),
+        # so the attribute weight compares like with like, whatever the part's unit
+        scale = 1.0 / tpu_k if tpu_k > 0 else 1.0
+        uv_k = uv_split * np.array([W, H]) * scale
         # meshoptimizer does not keep the topology: on the torus two seam edges of 2,000
         # came out shared by four triangles (a pinch). The full mesh's 1-rings of such
         # edges are locked and the collapse rerun, until none is left (deterministic; one
@@ -490,7 +561,7 @@ def bake_preserve(full_vertices, full_faces, settings, *, input_name: str = "inp
         rounds = 0
         chart_sign = chart_orientation(sf, uv_split, s_chart)
         for rounds in range(1, C.PRESERVE_PINCH_ROUNDS + 1):
-            cf_split, err = simplify_preserving(FV[s_vert], sf, uv_m, target, lock=lock_all,
+            cf_split, err = simplify_preserving(FVk[s_vert], sf, uv_k, target, lock=lock_all,
                                                 uv_weight=ps.uv_weight)
             pinched = pinched_vertices(s_vert[cf_split])
             if len(pinched) == 0:
