@@ -4,7 +4,7 @@ The same file baked with ``--units mm`` and ``--units m`` (a factor of 1000) mus
 same coarse mesh (triangle count, and triangles in the same UV places) with the texel size
 scaled by the unit ratio. Before the route worked in a frame scaled to a fixed diagonal,
 pymeshlab's proxy collapse, xatlas's charts and meshoptimizer's UV weight all changed with
-the unit; shared/models/hammer_scan.obj baked with --units cm was refused (a coarse UV
+the unit; the shared models' hammer_scan.obj baked with --units cm was refused (a coarse UV
 triangle of no area on a chart outline read texels outside the gutter) while in, mm and m
 passed.
 """
@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 import trimesh
 
+from hbake.bench import shared_models_dir
 from hbake.load import load_mesh
 from hbake.preserve import bake_preserve, degenerate_footprints
 from hbake.settings import BakeSettings
 
-HAMMER = Path("/work/shared/models/hammer_scan.obj")
-if not HAMMER.exists():
-    HAMMER = Path(__file__).resolve().parents[1].parent / "shared" / "models" / "hammer_scan.obj"
+#: $HBAKE_MODELS, else ../shared/models beside the repository (the project's one setting).
+HAMMER = shared_models_dir() / "hammer_scan.obj"
 
 #: The texel sizes of the two units, each divided by its unit, agree to this ratio. The
 #: texel size is the median over covered texels of sqrt(3D area / UV area) of their coarse
