@@ -110,8 +110,10 @@ def _parse_atlas_size(ctx, param, value):
               help="Also write timings, peak memory and the manifest as JSON here "
                    "(outside the bundle: timings are not deterministic).")
 @click.option("-f", "--force", is_flag=True, help="Replace an existing bundle.")
-@click.option("-q", "--quiet", is_flag=True, help="No progress, summary or warnings "
-                                                  "(errors are still printed).")
+@click.option("-q", "--quiet", is_flag=True,
+              help="No progress, summary or warnings (errors are still printed). Progress "
+                   "is a bar per stage on a terminal, else one line per completed stage on "
+                   "stderr ('hbake: stage NAME SECONDS s').")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the report (as --report writes it, plus \"ok\": true) as JSON on "
                    "stdout instead of the summary; on an error {\"ok\": false, \"error\": "

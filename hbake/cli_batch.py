@@ -75,7 +75,10 @@ def _fail(exc: HbakeError, as_json: bool) -> None:
 @click.option("--rebuild", is_flag=True, help="Bake every model, up to date or not.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print the JSON report on stdout; progress and summary go to stderr.")
-@click.option("-q", "--quiet", is_flag=True, help="No progress lines or summary.")
+@click.option("-q", "--quiet", is_flag=True,
+              help="No progress lines or summary. Progress is one line per model on stderr "
+                   "(the bakes run quietly: hbake bake's per-stage lines are not shown, so "
+                   "parallel bakes never interleave).")
 def batch_command(inputs, out_dir, jobs, config, memory_budget, executor, scheduler, retries,
                   report_path, rebuild, as_json, quiet):
     """Bake every mesh of INPUTS (directories of meshes, or mesh files) into OUT_DIR.

@@ -277,6 +277,11 @@ def test_interrupt_during_bake(tmp_path, big_mesh, sig, extra_delay):
     survivors = [p for p in family if Path(f"/proc/{p}").exists()
                  and "Z" not in Path(f"/proc/{p}/stat").read_text().split(")")[-1][:3]]
     assert survivors == [], f"processes of the bake still run after {sig.name}: {survivors}"
+    # Stages completed before the signal each printed their progress line (stderr is not a
+    # terminal: hbake/progress.py); the interruption itself is one line, the last.
+    progress = [ln for ln in stderr.splitlines() if ln.startswith("hbake: stage ")]
+    assert stderr.splitlines()[:len(progress)] == progress, stderr
+    stderr = "".join(ln + "\n" for ln in stderr.splitlines() if not ln.startswith("hbake: stage "))
     _check_failure(proc.returncode, stdout, stderr, EXIT_INTERRUPTED, [])
     assert "interrupt" in stderr.lower() or "signal" in stderr.lower(), stderr
     assert _snapshot(out) == [], "the interrupted bake left files behind"
