@@ -39,6 +39,7 @@ from .fileio import FileTooLargeError, read_regular
 
 __all__ = [
     "FORMAT_NAME", "FORMAT_VERSION", "FORMAT_MAJOR", "FILE_NAMES", "ERROR_CLASSES",
+    "PIECES_TABLE_MINOR", "pieces_layout_is_table",
     "BundleData", "Bundle", "Problem",
     "write_bundle", "read_bundle", "validate_bundle", "check_bundle",
     "atlas_lookup", "texel_coords",
@@ -51,10 +52,13 @@ __all__ = [
 # --------------------------------------------------------------------------- constants
 
 FORMAT_NAME = "hbundle"
-FORMAT_VERSION = "1.1"
-#: The version of bundles whose manifest has the "route" field (method pp or auto).
-FORMAT_VERSION_ROUTE = "1.2"
+#: The version hbake writes (with or without the optional "route" field of 1.2).
+FORMAT_VERSION = "1.3"
 FORMAT_MAJOR = 1
+#: The first minor version whose pieces.ply keeps the piece -> coarse-triangle map in
+#: fixed-size elements (``piece`` counts, ``piece_coarse_face`` rows) that MeshLab and
+#: trimesh read; 1.0-1.2 kept one variable-length list per piece, which they do not.
+PIECES_TABLE_MINOR = 3
 
 #: Fixed file names inside a bundle (the manifest's ``files.*.path`` may name others).
 FILE_NAMES = {"manifest": "manifest.json", "coarse_mesh": "coarse.ply",
@@ -110,6 +114,25 @@ _COARSE_HEADER = (
     "end_header\n"
 )
 _PIECES_HEADER = (
+    "ply\n"
+    "format binary_little_endian 1.0\n"
+    "comment hbundle pieces 1.3\n"
+    "element vertex {n}\n"
+    "property float x\n"
+    "property float y\n"
+    "property float z\n"
+    "property uint piece\n"
+    "element face {m}\n"
+    "property list uchar uint vertex_indices\n"
+    "property uint piece\n"
+    "element piece {p}\n"
+    "property uint coarse_face_count\n"
+    "element piece_coarse_face {k}\n"
+    "property uint coarse_face\n"
+    "end_header\n"
+)
+#: pieces.ply of format 1.0-1.2 (read, never written): the map as one list per piece.
+_PIECES_HEADER_LISTS = (
     "ply\n"
     "format binary_little_endian 1.0\n"
     "comment hbundle pieces 1.0\n"
@@ -714,7 +737,8 @@ def write_coarse_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.nd
 
 def write_pieces_ply(path: str | os.PathLike, piece_vertices: list[np.ndarray],
                      piece_faces: list[np.ndarray], piece_coarse_faces: list[np.ndarray]) -> None:
-    """Write ``pieces.ply``: global vertex indices, piece ids, and the coarse-face map."""
+    """Write ``pieces.ply`` (format 1.3): global vertex indices, piece ids, and the
+    coarse-face map as fixed-size elements (per piece its count, then all rows)."""
     if not (len(piece_vertices) == len(piece_faces) == len(piece_coarse_faces)):
         raise ValueError("piece_vertices, piece_faces and piece_coarse_faces differ in length")
     verts, faces, vid, fid = [], [], [], []
@@ -739,14 +763,15 @@ def write_pieces_ply(path: str | os.PathLike, piece_vertices: list[np.ndarray],
     frec["n"] = 3
     frec["idx"] = f.astype("<u4")
     frec["piece"] = np.concatenate(fid) if fid else np.zeros(0, np.uint32)
+    maps = [np.asarray(cf, dtype=np.int64).ravel() for cf in piece_coarse_faces]
+    counts = np.array([len(cf) for cf in maps], dtype="<u4")
+    rows = np.concatenate(maps).astype("<u4") if maps else np.zeros(0, "<u4")
     with open(path, "wb") as fh:
-        fh.write(_PIECES_HEADER.format(n=len(v), m=len(f), p=len(piece_vertices)).encode("ascii"))
+        fh.write(_PIECES_HEADER.format(n=len(v), m=len(f), p=len(maps), k=len(rows)).encode("ascii"))
         fh.write(vrec.tobytes())
         fh.write(frec.tobytes())
-        for cf in piece_coarse_faces:
-            cf = np.asarray(cf, dtype=np.int64).ravel()
-            fh.write(np.array([len(cf)], dtype="<u4").tobytes())
-            fh.write(cf.astype("<u4").tobytes())
+        fh.write(counts.tobytes())
+        fh.write(rows.tobytes())
 
 
 def _parse_coarse(blob: bytes, name: str, add) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -770,9 +795,67 @@ def _parse_coarse(blob: bytes, name: str, add) -> tuple[np.ndarray, np.ndarray, 
     return v, f, uv
 
 
-def _parse_pieces(blob: bytes, name: str, add):
+def pieces_layout_is_table(format_version: str) -> bool:
+    """Whether a bundle of ``format_version`` ("1.x") stores pieces.ply's map in the
+    fixed-size elements of 1.3 (else in the per-piece lists of 1.0-1.2)."""
+    minor = format_version.partition(".")[2]
+    return minor.isdigit() and int(minor) >= PIECES_TABLE_MINOR
+
+
+_PIECES_LAYOUT_13 = ("the piece -> coarse-triangle map is in the layout of format 1.3 (elements piece and "
+                     "piece_coarse_face), but the manifest's format_version is below 1.3 (one coarse_faces "
+                     "list per piece)")
+_PIECES_LAYOUT_12 = ("the piece -> coarse-triangle map is in the layout of format 1.0-1.2 (one coarse_faces "
+                     "list per piece), but the manifest's format_version is 1.3 or later (elements piece and "
+                     "piece_coarse_face)")
+
+
+def _parse_pieces(blob: bytes, name: str, add, format_version: str = FORMAT_VERSION):
+    table = pieces_layout_is_table(format_version)
+    head = blob[:_MAX_HEADER_BYTES]
+    end = head.find(b"end_header\n")
+    head = head if end < 0 else head[:end]
+    if table and b"\nproperty list uint uint coarse_faces\n" in head:
+        add(f"{name}: {_PIECES_LAYOUT_12}")
+        raise _Fail
+    if not table and b"\nelement piece_coarse_face " in head:
+        add(f"{name}: {_PIECES_LAYOUT_13}")
+        raise _Fail
+    if not table:
+        return _parse_pieces_lists(blob, name, add)
     lines, off = _read_header(blob, name, add)
     c = _match_header(lines, _PIECES_HEADER, name, add)
+    n, m, p, k = c["n"], c["m"], c["p"], c["k"]
+    need = off + n * _PIECE_VERTEX.itemsize + m * _PIECE_FACE.itemsize + 4 * p + 4 * k
+    if len(blob) != need:
+        add(f"{name}: {len(blob)} bytes, the header's {n} vertices, {m} faces, {p} pieces and {k} "
+            f"coarse-face rows need {need}" + (" (file is truncated)" if len(blob) < need else " (trailing bytes)"))
+        raise _Fail
+    vrec = np.frombuffer(blob, dtype=_PIECE_VERTEX, count=n, offset=off)
+    frec = np.frombuffer(blob, dtype=_PIECE_FACE, count=m, offset=off + n * _PIECE_VERTEX.itemsize)
+    bad = np.flatnonzero(frec["n"] != 3)
+    if len(bad):
+        add(f"{name}: {_n(len(bad), 'face record')} without 3 indices (first: face {bad[0]})")
+        raise _Fail
+    fixed = off + n * _PIECE_VERTEX.itemsize + m * _PIECE_FACE.itemsize
+    counts = np.frombuffer(blob, dtype="<u4", count=p, offset=fixed).astype(np.int64)
+    total = int(counts.sum())
+    if total != k:
+        add(f"{name}: the pieces' coarse_face_count add up to {total}, the piece_coarse_face "
+            f"element has {k} rows")
+        raise _Fail
+    words = np.frombuffer(blob, dtype="<u4", count=k, offset=fixed + 4 * p).astype(np.uint32)
+    ends = np.cumsum(counts)
+    maps = [words[e - c:e] for e, c in zip(ends.tolist(), counts.tolist())]
+    v = np.stack([vrec["x"], vrec["y"], vrec["z"]], axis=1).astype(np.float64)
+    return v, vrec["piece"].astype(np.uint32), frec["idx"].astype(np.uint32), \
+        frec["piece"].astype(np.uint32), maps
+
+
+def _parse_pieces_lists(blob: bytes, name: str, add):
+    """pieces.ply of format 1.0-1.2: the map as a variable-length list per piece."""
+    lines, off = _read_header(blob, name, add)
+    c = _match_header(lines, _PIECES_HEADER_LISTS, name, add)
     n, m, p = c["n"], c["m"], c["p"]
     fixed = off + n * _PIECE_VERTEX.itemsize + m * _PIECE_FACE.itemsize
     if len(blob) < fixed + 4 * p:
@@ -824,11 +907,12 @@ def read_coarse_ply(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np
         raise BundleError("mesh", msgs[0]) from None
 
 
-def read_pieces_ply(path: str | os.PathLike):
-    """(vertices, vertex piece ids, faces (global), face piece ids, coarse-face maps)."""
+def read_pieces_ply(path: str | os.PathLike, format_version: str = FORMAT_VERSION):
+    """(vertices, vertex piece ids, faces (global), face piece ids, coarse-face maps) of
+    the pieces.ply of a bundle of ``format_version`` (the layout of 1.3, or of 1.0-1.2)."""
     msgs: list[str] = []
     try:
-        return _parse_pieces(Path(path).read_bytes(), Path(path).name, msgs.append)
+        return _parse_pieces(Path(path).read_bytes(), Path(path).name, msgs.append, format_version)
     except _Fail:
         raise BundleError("pieces", msgs[0]) from None
 
@@ -985,9 +1069,8 @@ def _write_files(tmp: Path, data: BundleData, compression: str) -> dict:
     files["atlas"].update(width=int(w), height=int(h), channels=list(ATLAS_CHANNELS),
                           pixel_type="float", compression=compression)
     manifest = dict(data.manifest)
-    # 1.2 adds the optional "route" (hbake/preserve.py); bundles without it stay 1.1
-    version = FORMAT_VERSION_ROUTE if "route" in manifest else FORMAT_VERSION
-    manifest.update(format=FORMAT_NAME, format_version=version, files=files)
+    # 1.3 (pieces.ply's map in fixed-size elements), with or without 1.2's optional "route"
+    manifest.update(format=FORMAT_NAME, format_version=FORMAT_VERSION, files=files)
     blob = manifest_bytes(manifest)
     (tmp / names["manifest"]).write_bytes(blob)
     for key in names.values():
@@ -1718,7 +1801,7 @@ class _Checker:
         name = self.manifest["files"]["pieces"]["path"]
         add = self.adder("pieces")
         try:
-            v, vp, f, fp, maps = _parse_pieces(blob, name, add)
+            v, vp, f, fp, maps = _parse_pieces(blob, name, add, self.manifest["format_version"])
         except _Fail:
             return
         p = len(maps)

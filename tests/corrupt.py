@@ -153,11 +153,17 @@ def _nonconvex_piece(b: Path) -> None:
 
 
 def _map_out_of_range(b: Path) -> None:
-    """Make the last coarse_faces entry of the last non-empty list point past the mesh."""
+    """Make the last coarse-face entry of the last piece that has any point past the mesh
+    (the last piece_coarse_face row; in a 1.0-1.2 file, the last entry of the last
+    non-empty coarse_faces list)."""
     path, blob, off, verts, faces = _pieces_arrays(b)
     m_coarse = _manifest(b)["coarse"]["triangles"]
     pos = off + verts.nbytes + faces.nbytes
     last_entry = None
+    if b"\nelement piece_coarse_face " in blob[:off]:  # format 1.3: the rows end the file
+        if _ply_count(blob, "piece_coarse_face"):
+            last_entry = len(blob) - 4
+        pos = len(blob)
     while pos < len(blob):
         cnt = int(np.frombuffer(blob, dtype="<u4", count=1, offset=pos)[0])
         if cnt:

@@ -116,14 +116,24 @@ def test_repair_leaves_good_texels_alone():
 
 
 def test_format_1_0_still_read(tmp_path):
-    """hbake writes 1.1 (atlas.discontinuities, quality.reconstruction.coarse_to_full_uncut);
-    a 1.0 bundle (the golden bundle with those fields removed and version 1.0: the manifest
-    is not hashed) validates and reads, and so does a later 1.x with a field it does not
-    know."""
-    assert FORMAT_VERSION == "1.1"
+    """hbake writes 1.1's fields (atlas.discontinuities, quality.reconstruction.
+    coarse_to_full_uncut); a 1.0 bundle (the golden bundle with those fields removed,
+    version 1.0 and pieces.ply in the layout of 1.0-1.2) validates and reads, and so does
+    a later 1.x with a field it does not know."""
+    import hashlib
+    import sys
+
+    sys.path.insert(0, str(GOLDEN))
+    dont_write, sys.dont_write_bytecode = sys.dont_write_bytecode, True  # no __pycache__ in tests/golden
+    try:
+        from make_golden import write_pieces_ply_1_2
+    finally:
+        sys.path.remove(str(GOLDEN))
+        sys.dont_write_bytecode = dont_write
+    assert FORMAT_VERSION == "1.3"
     src = GOLDEN / "pebble.hbundle"
     m = read_bundle(src).manifest
-    assert m["format_version"] == "1.1" and "discontinuities" in m["atlas"]
+    assert m["format_version"] == "1.3" and "discontinuities" in m["atlas"]
     for version, edit in (("1.0", "drop"), ("1.7", "extra")):
         dst = tmp_path / f"v{version}.hbundle"
         shutil.copytree(src, dst)
@@ -132,6 +142,9 @@ def test_format_1_0_still_read(tmp_path):
         if edit == "drop":
             del man["atlas"]["discontinuities"]
             del man["quality"]["reconstruction"]["coarse_to_full_uncut"]
+            write_pieces_ply_1_2(dst / "pieces.ply", src / "pieces.ply")
+            blob = (dst / "pieces.ply").read_bytes()
+            man["files"]["pieces"].update(sha256=hashlib.sha256(blob).hexdigest(), bytes=len(blob))
         else:
             man["atlas"]["a_later_field"] = {"x": 1}
         (dst / "manifest.json").write_bytes(manifest_bytes(man))

@@ -31,6 +31,8 @@ from hbake.errors import (
 
 REPO = Path(__file__).resolve().parents[1]
 GOLDEN = REPO / "tests" / "golden"
+#: The bundle kept in format 1.2 (pieces.ply's map as one list per piece).
+FORMAT_1_2 = GOLDEN / "format-1.2" / "ridged_box_pp.hbundle"
 SPEC = REPO / "docs" / "bundle-format.md"
 
 
@@ -217,15 +219,20 @@ def test_ply_headers_are_the_spec_headers(cube):
     assert coarse.startswith(want.encode())
     nv = sum(len(p) for p in b.piece_vertices)
     nf = sum(len(p) for p in b.piece_faces)
+    nk = sum(len(m) for m in b.piece_coarse_faces)
     want = _spec_header("## `pieces.ply`").replace(" N\n", f" {nv}\n").replace(" M\n", f" {nf}\n") \
-        .replace(" P\n", f" {len(b.piece_vertices)}\n")
+        .replace(" P\n", f" {len(b.piece_vertices)}\n").replace(" K\n", f" {nk}\n")
     pieces = (cube / "pieces.ply").read_bytes()
     assert pieces.startswith(want.encode())
     # body sizes by the spec's record layout
     assert len(coarse) == coarse.index(b"end_header\n") + 11 \
         + 12 * len(b.coarse_vertices) + (1 + 12 + 1 + 24) * len(b.coarse_faces)
-    maps = sum(4 + 4 * len(m) for m in b.piece_coarse_faces)
-    assert len(pieces) == pieces.index(b"end_header\n") + 11 + 16 * nv + (1 + 12 + 4) * nf + maps
+    assert len(pieces) == pieces.index(b"end_header\n") + 11 + 16 * nv + (1 + 12 + 4) * nf \
+        + 4 * len(b.piece_vertices) + 4 * nk
+    # the map: per piece its count, then the rows piece by piece
+    body = np.frombuffer(pieces, "<u4", offset=len(pieces) - 4 * (len(b.piece_vertices) + nk))
+    np.testing.assert_array_equal(body[:len(b.piece_vertices)], [len(m) for m in b.piece_coarse_faces])
+    np.testing.assert_array_equal(body[len(b.piece_vertices):], np.concatenate(b.piece_coarse_faces))
 
 
 def test_coarse_ply_opens_in_meshlab_with_wedge_uvs(cube):
@@ -643,6 +650,52 @@ def test_pieces_ids_and_too_small(cube):
         write_bundle(cube.parent / "small.hbundle", data)
 
 
+def _pieces_map_offset(path: Path) -> tuple[bytearray, int]:
+    """pieces.ply's bytes and the offset of its piece element (the per-piece counts)."""
+    blob, off, verts, faces = _pieces_records(path)
+    return blob, off + verts.nbytes + faces.nbytes
+
+
+def test_pieces_map_table_errors(cube):
+    """The 1.3 map elements: length from the header, counts that add up to the rows."""
+    good = (cube / "pieces.ply").read_bytes()
+    _rewrite(cube, "pieces", good[:-4])
+    first = _first(cube)
+    assert first.cls == "pieces" and "2 pieces and 20 coarse-face rows need" in first.message \
+        and "(file is truncated)" in first.message
+    _rewrite(cube, "pieces", good + b"abc")
+    assert "(trailing bytes)" in _first(cube).message
+    _rewrite(cube, "pieces", good)
+    blob, at = _pieces_map_offset(cube)
+    blob[at:at + 4] = np.array([11], "<u4").tobytes()
+    _rewrite(cube, "pieces", bytes(blob))
+    assert _first(cube).message.endswith(
+        "the pieces' coarse_face_count add up to 21, the piece_coarse_face element has 20 rows")
+    _rewrite(cube, "pieces", good.replace(b"element piece_coarse_face 20\n", b"element piece_coarse_face 4294967295\n"))
+    assert "4294967295 coarse-face rows need" in _first(cube).message
+
+
+def test_pieces_layout_follows_the_version(cube):
+    """1.3's layout under a 1.0-1.2 version, and 1.2's under 1.3, are pieces errors that say so."""
+    _rewrite_manifest(cube, lambda m: m.update(format_version="1.2"))
+    first = _first(cube)
+    assert first.cls == "pieces" and "in the layout of format 1.3" in first.message
+    legacy = cube.parent / "legacy.hbundle"
+    shutil.copytree(FORMAT_1_2, legacy)
+    assert validate_bundle(legacy) == []
+    _rewrite_manifest(legacy, lambda m: m.update(format_version="1.3"))
+    first = _first(legacy)
+    assert first.cls == "pieces" and "in the layout of format 1.0-1.2" in first.message
+    with pytest.raises(BundleError, match="in the layout of format 1.0-1.2"):
+        read_bundle(legacy)
+    # leading zeros are the number: 1.03 is 1.3, 1.010 is 1.10
+    for v in ("1.03", "1.010"):
+        _rewrite_manifest(legacy, lambda m: m.update(format_version=v))
+        assert _first(legacy).cls == "pieces"
+    _rewrite_manifest(legacy, lambda m: m.update(format_version="01.02"))
+    assert validate_bundle(legacy) == []
+
+
 def _rewrite_exr(path: Path, pixels: dict, header: dict | None = None):
     import OpenEXR
 
@@ -824,15 +877,22 @@ def test_golden_bundle_validates(name):
     assert r.exit_code == 0
 
 
-@pytest.mark.parametrize("name", [b.name for b in _golden_bundles()] or ["(none)"])
+def _golden_and_1_2() -> list[str]:
+    return [b.name for b in _golden_bundles()] + [str(FORMAT_1_2.relative_to(GOLDEN))]
+
+
+@pytest.mark.parametrize("name", _golden_and_1_2())
 def test_golden_expected_values_reproduce(name):
     path = GOLDEN / name
     exp = json.loads((GOLDEN / name.replace(".hbundle", ".expected.json")).read_text())
     b = read_bundle(path)
     h, w = b.atlas.shape[:2]
-    assert exp["bundle"] == name
+    assert exp["bundle"] == path.name
+    assert exp["format_version"] == b.manifest["format_version"] == ("1.2" if path == FORMAT_1_2 else hb.FORMAT_VERSION)
     assert (exp["atlas"]["width"], exp["atlas"]["height"]) == (w, h)
     assert exp["coarse"] == {"vertices": len(b.coarse_vertices), "triangles": len(b.coarse_faces)}
+    assert exp["pieces"]["count"] == len(b.piece_coarse_faces)
+    assert exp["pieces"]["coarse_faces"] == [m.tolist() for m in b.piece_coarse_faces]
     tol = exp["tolerance"]["position"]
     for t in exp["texels"]:
         np.testing.assert_array_equal(b.atlas[t["j"], t["i"]], np.float32(t["rgba"]))
@@ -867,11 +927,24 @@ def test_golden_expected_values_reproduce(name):
         assert -q["displacement_inward"] - tol <= s["height"] <= q["displacement_outward"] + tol
 
 
-# --------------------------------------------------------------------------- determinism of a real bake
+def test_format_1_2_bundle_still_reads_and_is_current(tmp_path):
+    """The 1.2 bundle (pieces.ply's map as one list per piece) validates through the
+    command, reads, and is what tests/golden/make_golden.py makes now: the ridged block
+    baked by --method pp and stored in the 1.2 layout (which matched hbake's 1.2 writer
+    byte for byte when the fixture was first made by it)."""
+    r = _run_cli("validate", FORMAT_1_2)
+    assert r.exit_code == 0 and r.output == f"{FORMAT_1_2}: OK\n", r.output
+    assert read_bundle(FORMAT_1_2).manifest["format_version"] == "1.2"
+    assert b"\nproperty list uint uint coarse_faces\n" in (FORMAT_1_2 / "pieces.ply").read_bytes()[:1024]
+    make_golden = _make_golden()
+    fresh = make_golden.bake_legacy(tmp_path)
+    names = sorted(os.listdir(FORMAT_1_2))
+    assert sorted(os.listdir(fresh)) == names
+    _, mismatch, errors = filecmp.cmpfiles(fresh, FORMAT_1_2, names, shallow=False)
+    assert mismatch == [] and errors == []
 
-def test_bake_twice_gives_byte_identical_bundles(tmp_path):
-    """Issue 2, item 5: the same input and settings give a byte-identical bundle
-    (the pebble input and settings of the golden bundles, baked twice)."""
+
+def _make_golden():
     import sys
 
     sys.path.insert(0, str(GOLDEN))
@@ -882,6 +955,15 @@ def test_bake_twice_gives_byte_identical_bundles(tmp_path):
     finally:
         sys.path.remove(str(GOLDEN))
         sys.dont_write_bytecode = dont_write
+    return make_golden
+
+
+# --------------------------------------------------------------------------- determinism of a real bake
+
+def test_bake_twice_gives_byte_identical_bundles(tmp_path):
+    """Issue 2, item 5: the same input and settings give a byte-identical bundle
+    (the pebble input and settings of the golden bundles, baked twice)."""
+    make_golden = _make_golden()
     outs = []
     for k in range(2):
         d = tmp_path / f"run{k}"

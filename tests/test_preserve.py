@@ -117,7 +117,7 @@ def hrt():
 def test_torus_reaches_target_by_preserve(bakes):
     m = bakes["torus_pp"].manifest
     assert m["method"] == "pp" and m["settings"]["method"] == "pp"
-    assert m["format_version"] == "1.2" and m["route"]["chosen"] == "pp"
+    assert m["format_version"] == "1.3" and m["route"]["chosen"] == "pp"
     assert m["source"]["triangles"] == 128_000
     assert m["coarse"]["triangles"] <= TORUS_TARGET
     assert m["coarse"]["closed"]
@@ -357,7 +357,7 @@ def test_auto_falls_back_to_cage(ridged_box_ply, tmp_path):
     assert m["method"] == "cage" and m["settings"]["method"] == "auto"
     assert m["route"]["requested"] == "auto" and m["route"]["chosen"] == "cage"
     assert "cannot reach" in m["route"]["reason"] and "error" in m["route"]["candidates"]["pp"]
-    assert m["format_version"] == "1.2"
+    assert m["format_version"] == "1.3"
     res = _hbake(["validate", str(out)])
     assert res.returncode == 0, res.stdout
 

@@ -104,13 +104,16 @@ def _agree(hrt: str, bundle: Path, cli: bool = False) -> tuple[str | None, str |
 # --------------------------------------------------------------------------- golden bundles
 
 def _committed() -> list[Path]:
-    return sorted(GOLDEN.glob("*.hbundle")) + sorted((GOLDEN / "corrupt").glob("*.hbundle"))
+    """The golden bundles, the 1.2 one (format-1.2/) and the committed corrupt variants."""
+    return (sorted(GOLDEN.glob("*.hbundle")) + sorted((GOLDEN / "format-1.2").glob("*.hbundle"))
+            + sorted((GOLDEN / "corrupt").glob("*.hbundle")))
 
 
 def test_golden_and_committed_corrupt_bundles_agree(hrt):
     index = json.loads((GOLDEN / "corrupt" / "index.json").read_text())
     want = {v["bundle"]: v["class"] for v in index["variants"]}
     assert len(want) == len(list((GOLDEN / "corrupt").glob("*.hbundle")))
+    assert (GOLDEN / "format-1.2" / "ridged_box_pp.hbundle").is_dir()
     for b in _committed():
         h, p = _agree(hrt, b, cli=True)
         assert (h, p) == ((want[b.name],) * 2 if b.name in want else (None, None)), b.name
@@ -361,6 +364,19 @@ def _pieces(extra_face: bool):
     return apply
 
 
+def _pieces_count(piece: int, add: int):
+    """pieces.ply with the coarse_face_count of ``piece`` changed by ``add`` (rehashed)."""
+    def apply(b: Path) -> None:
+        p = b / "pieces.ply"
+        blob = bytearray(p.read_bytes())
+        v, _, f, _, maps = hb.read_pieces_ply(p)
+        at = blob.index(b"end_header\n") + len(b"end_header\n") + 16 * len(v) + 17 * len(f) + 4 * piece
+        blob[at:at + 4] = struct.pack("<I", len(maps[piece]) + add)
+        p.write_bytes(bytes(blob))
+        _rehash(b)
+    return apply
+
+
 def _ply_header(key: str, old: bytes, new: bytes):
     def apply(b: Path) -> None:
         p = b / _manifest(b)["files"][key]["path"]
@@ -395,7 +411,7 @@ VARIANTS = [
     ("manifest_1mib", _pad_manifest(MIB), None),
     ("manifest_over_1mib", _pad_manifest(MIB + 1), "io"),
     # format_version: at most 32 characters
-    ("version_32_chars", _edit_manifest(format_version="1." + "0" * 30), None),
+    ("version_32_chars", _edit_manifest(format_version="1." + "0" * 29 + "3"), None),
     ("version_33_chars", _edit_manifest(format_version="1." + "0" * 31), "version"),
     # nesting
     ("nesting_64", _nested(64), None),
@@ -465,6 +481,14 @@ VARIANTS = [
     ("atlas_texel_at_10001_m", _atlas_edit(_far_texel(10001.0)), "atlas"),
     ("coarse_vertex_at_2e4_m", _far_coarse_vertex, "mesh"),
     ("piece_vertex_at_2e4_m", _far_piece_vertex, "pieces"),
+    # pieces.ply's map (format 1.3: per-piece counts, then the rows) and its layout,
+    # which follows the version (1.0-1.2: one list per piece)
+    ("pieces_map_counts_disagree", _pieces_count(0, 1), "pieces"),
+    ("pieces_map_rows_2_32", _ply_header("pieces", b"element piece_coarse_face 20\n",
+                                         b"element piece_coarse_face 4294967296\n"), "pieces"),
+    ("pieces_1_3_layout_as_1_2", _edit_manifest(format_version="1.2"), "pieces"),
+    ("pieces_1_3_layout_as_1_02", _edit_manifest(format_version="1.02"), "pieces"),
+    ("pieces_1_3_layout_as_1_30", _edit_manifest(format_version="1.30"), None),
     # piece faces
     ("piece_2044_faces", _pieces(False), None),
     ("piece_2045_faces", _pieces(True), "pieces"),

@@ -3,7 +3,8 @@
 
 Usage: make_corpus.py --golden tests/golden --out build/fuzz/fuzz/seed_corpus
 
-Every tests/golden/*.hbundle and tests/golden/corrupt/*.hbundle becomes a few
+Every tests/golden/*.hbundle, tests/golden/format-1.2/*.hbundle and
+tests/golden/corrupt/*.hbundle becomes a few
 inputs (flags x pose, see VARIANTS); the container format is documented in
 fuzz_bundle.cpp and runtime/fuzz/README.md:
 
@@ -71,7 +72,9 @@ def main() -> int:
     if not a.golden or not a.out:
         ap.error("--golden and --out are required (or --pack)")
 
-    good = sorted(a.golden.glob("*.hbundle"))
+    # the current format's bundles and the one kept in format 1.2 (pieces.ply's
+    # map as one list per piece), so both layouts of pieces.ply are seeds
+    good = sorted(a.golden.glob("*.hbundle")) + sorted((a.golden / "format-1.2").glob("*.hbundle"))
     bad = sorted((a.golden / "corrupt").glob("*.hbundle"))
     if not good:
         print(f"make_corpus.py: no bundle in {a.golden}", file=sys.stderr)

@@ -61,7 +61,8 @@ void edit_manifest(const std::string& dir, const std::function<void(json&)>& f) 
 }
 float* texel(BundleContent& b, int i, int j) { return &b.rgba[(static_cast<size_t>(j) * b.width + i) * 4]; }
 
-// Pieces file layout (bytes after the header): vertices 16 B, faces 17 B, lists.
+// Pieces file layout (bytes after the header): vertices 16 B, faces 17 B, then
+// the lists (1.0-1.2) or the per-piece counts and the rows (1.3).
 size_t piece_vertex_offset(const std::string& dir, size_t i) {
   return body_offset(read_bytes(dir + "/pieces.ply")) + 16 * i;
 }
@@ -74,6 +75,7 @@ std::vector<Case> cases() {
   auto manifest = [](std::function<void(json&)> f) { return [f](const std::string& dir) { edit_manifest(dir, f); }; };
   auto content = [](std::function<void(BundleContent&)> f) { return [f](BundleContent& b, ExrOptions&) { f(b); }; };
   auto exr = [](std::function<void(ExrOptions&)> f) { return [f](BundleContent&, ExrOptions& e) { f(e); }; };
+  auto v13 = [](BundleContent& b, ExrOptions&) { b.manifest["format_version"] = "1.3"; };
   std::vector<Case> v = {
       // ---- io
       {"manifest_missing", none, [](const std::string& d) { std::filesystem::remove(d + "/manifest.json"); }, false, C::io,
@@ -301,6 +303,40 @@ std::vector<Case> cases() {
        true, C::pieces, "3 bytes after the last element"},
       {"pieces_huge_list", none, [](const std::string& d) { patch_u32(d + "/pieces.ply", piece_list_offset(d), 0xffffffffu); }, true,
        C::pieces, "file is truncated in the coarse_faces list of piece 0 (4294967295 entries)"},
+      // ---- pieces.ply of format 1.3: the map in the fixed-size elements `piece`
+      // (counts) and `piece_coarse_face` (rows); the layout follows the version
+      {"v13_pieces_of_1_2_layout", none, manifest([](json& m) { m["format_version"] = "1.3"; }), false, C::pieces,
+       "pieces.ply: the piece -> coarse-triangle map is in the layout of format 1.0-1.2 (one coarse_faces list per piece), "
+       "but the manifest's format_version is 1.3 or later"},
+      {"v12_pieces_of_1_3_layout", v13, manifest([](json& m) { m["format_version"] = "1.2"; }), false, C::pieces,
+       "pieces.ply: the piece -> coarse-triangle map is in the layout of format 1.3 (elements piece and piece_coarse_face), "
+       "but the manifest's format_version is below 1.3"},
+      {"v13_pieces_header", v13,
+       [](const std::string& d) { replace_text(d + "/pieces.ply", "element piece_coarse_face 20\n", "element piece_coarse_face x\n"); },
+       true, C::pieces, "PLY header line 14 is 'element piece_coarse_face x', expected 'element piece_coarse_face K'"},
+      {"v13_pieces_truncated", v13,
+       [](const std::string& d) {
+         std::string b = read_bytes(d + "/pieces.ply");
+         write_bytes(d + "/pieces.ply", b.substr(0, b.size() - 4));
+       },
+       true, C::pieces, "the header's 16 vertices, 24 faces, 2 pieces and 20 coarse-face rows need 1"},
+      {"v13_pieces_trailing", v13, [](const std::string& d) { write_bytes(d + "/pieces.ply", read_bytes(d + "/pieces.ply") + "abc"); },
+       true, C::pieces, "(trailing bytes)"},
+      {"v13_pieces_huge_row_count", v13,
+       [](const std::string& d) {
+         replace_text(d + "/pieces.ply", "element piece_coarse_face 20\n", "element piece_coarse_face 4294967295\n");
+       },
+       true, C::pieces, "2 pieces and 4294967295 coarse-face rows need"},
+      {"v13_pieces_counts_disagree", v13, [](const std::string& d) { patch_u32(d + "/pieces.ply", piece_list_offset(d), 11); }, true,
+       C::pieces, "the pieces' coarse_face_count add up to 21, the piece_coarse_face element has 20 rows"},
+      {"v13_map_out_of_range", [](BundleContent& b, ExrOptions&) {
+         b.manifest["format_version"] = "1.3";
+         b.piece_map[1].push_back(12);
+       }, nofile, false, C::pieces, "piece 1 maps to coarse triangle 12, out of range (coarse triangle count 12)"},
+      {"v13_map_unsorted", [](BundleContent& b, ExrOptions&) {
+         b.manifest["format_version"] = "1.3";
+         std::swap(b.piece_map[0][2], b.piece_map[0][3]);
+       }, nofile, false, C::pieces, "coarse_faces of piece 0 are not ascending and unique"},
       {"piece_id_out_of_range", none, [](const std::string& d) { patch_u32(d + "/pieces.ply", piece_vertex_offset(d, 15) + 12, 7); },
        true, C::pieces, "vertex 15 has piece id 7 (pieces are 0..1)"},
       {"pieces_out_of_order", none, [](const std::string& d) { patch_u32(d + "/pieces.ply", piece_vertex_offset(d, 0) + 12, 1); },

@@ -29,12 +29,18 @@ namespace fs = std::filesystem;
 
 namespace {
 
+// The bundle kept in format 1.2 (pieces.ply's map as one list per piece), made
+// by tests/golden/make_golden.py next to the current ones.
+fs::path format_1_2_bundle() { return fs::path(golden_dir()) / "format-1.2" / "ridged_box_pp.hbundle"; }
+
+// The golden bundles of the current format, and the 1.2 one.
 std::vector<fs::path> golden_bundles() {
   std::vector<fs::path> out;
   if (!fs::is_directory(golden_dir())) return out;
   for (const auto& e : fs::directory_iterator(golden_dir()))
     if (e.is_directory() && e.path().extension() == ".hbundle") out.push_back(e.path());
   std::sort(out.begin(), out.end());
+  if (fs::is_directory(format_1_2_bundle())) out.push_back(format_1_2_bundle());
   return out;
 }
 
@@ -61,6 +67,10 @@ TEST(IoGolden, EveryBundleLoadsAndMatchesItsExpectedValues) {
     EXPECT_EQ(m.vertices.size(), exp["coarse"]["vertices"].get<size_t>());
     EXPECT_EQ(m.faces.size(), exp["coarse"]["triangles"].get<size_t>());
     EXPECT_EQ(m.pieces.size(), exp["pieces"]["count"].get<size_t>());
+    // The piece -> coarse-triangle map, as hbake's reader reads it (both layouts).
+    ASSERT_EQ(exp["pieces"]["coarse_faces"].size(), m.pieces.size());
+    for (size_t p = 0; p < m.pieces.size(); ++p)
+      EXPECT_EQ(m.pieces[p].coarse_faces, exp["pieces"]["coarse_faces"][p].get<std::vector<uint32_t>>()) << "piece " << p;
     const double file_tol = exp["tolerance"]["position"].get<double>();
     const int W = m.atlas.width, H = m.atlas.height;
 
@@ -189,3 +199,43 @@ TEST(IoGolden, EveryCorruptedVariantIsRejectedWithItsClass) {
 }
 
 }  // namespace
+
+// Format 1.2 (pieces.ply's map as one variable-length list per piece) is still
+// read: the bundle that hbake's 1.2 writer made for the ridged block
+// (--method pp), kept in tests/golden/format-1.2. Its values are compared with
+// the rest above; here, that it is there and read as 1.2, and that the same
+// pieces.ply with its version edited to 1.3 is refused (the layout follows the
+// version).
+TEST(IoGolden, Format12BundleStillLoads) {
+  const fs::path path = format_1_2_bundle();
+  ASSERT_TRUE(fs::is_directory(path)) << path << " (tests/golden/make_golden.py writes it)";
+  const hrt::Model m = hrt::load_bundle(path.string());
+  EXPECT_EQ(m.format_version, "1.2");
+  const json man = read_json((path / "manifest.json").string());
+  ASSERT_EQ(m.pieces.size(), man["pieces"]["count"].get<size_t>());
+  size_t rows = 0;
+  for (const auto& p : m.pieces) rows += p.coarse_faces.size();
+  EXPECT_GT(rows, m.pieces.size());
+
+  // and the command: `hrt check` accepts it
+  if (!hrt_binary().empty()) {
+    const HrtRun r = run_hrt({"check", path.string()}, true);
+    EXPECT_EQ(r.status, 0) << r.err;
+    EXPECT_NE(r.out.find("format 1.2"), std::string::npos) << r.out;
+  }
+
+  const std::string copy = fresh_dir("format_1_2_as_1_3");
+  remove_tree(copy);
+  copy_dir(path.string(), copy);
+  json edited = man;
+  edited["format_version"] = "1.3";
+  write_json(copy + "/manifest.json", edited);
+  try {
+    hrt::load_bundle(copy);
+    ADD_FAILURE() << "a 1.2 pieces.ply under format_version 1.3 loaded";
+  } catch (const BundleError& e) {
+    EXPECT_EQ(e.error_class(), hrt::BundleErrorClass::pieces) << e.what();
+    EXPECT_NE(std::string(e.what()).find("in the layout of format 1.0-1.2"), std::string::npos) << e.what();
+  }
+  remove_tree(copy);
+}

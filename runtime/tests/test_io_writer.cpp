@@ -8,6 +8,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -103,17 +104,36 @@ std::string coarse_ply_bytes(const BundleContent& b) {
   return s;
 }
 
+bool pieces_table_layout(const BundleContent& b) {
+  const auto it = b.manifest.find("format_version");
+  if (it == b.manifest.end() || !it->is_string()) return false;
+  const std::string v = it->get<std::string>();
+  const size_t dot = v.find('.');
+  if (dot == std::string::npos) return false;
+  const std::string minor = v.substr(dot + 1);
+  if (minor.empty() || minor.find_first_not_of("0123456789") != std::string::npos) return false;
+  const std::string d = minor.substr(std::min(minor.find_first_not_of('0'), minor.size()));
+  return d.size() > 1 || (d.size() == 1 && d[0] >= '3');  // minor >= 3: the layout of format 1.3
+}
+
 std::string pieces_ply_bytes(const BundleContent& b) {
-  size_t nv = 0, nf = 0;
+  size_t nv = 0, nf = 0, nmap = 0;
   for (size_t p = 0; p < b.piece_vertices.size(); ++p) {
     nv += b.piece_vertices[p].size();
     nf += b.piece_faces[p].size();
   }
+  for (const auto& list : b.piece_map) nmap += list.size();
+  const bool table = pieces_table_layout(b);
   std::ostringstream h;
-  h << "ply\nformat binary_little_endian 1.0\ncomment hbundle pieces 1.0\n"
+  h << "ply\nformat binary_little_endian 1.0\ncomment hbundle pieces " << (table ? "1.3" : "1.0") << "\n"
     << "element vertex " << nv << "\nproperty float x\nproperty float y\nproperty float z\nproperty uint piece\n"
-    << "element face " << nf << "\nproperty list uchar uint vertex_indices\nproperty uint piece\n"
-    << "element piece " << b.piece_map.size() << "\nproperty list uint uint coarse_faces\nend_header\n";
+    << "element face " << nf << "\nproperty list uchar uint vertex_indices\nproperty uint piece\n";
+  if (table) {
+    h << "element piece " << b.piece_map.size() << "\nproperty uint coarse_face_count\n"
+      << "element piece_coarse_face " << nmap << "\nproperty uint coarse_face\nend_header\n";
+  } else {
+    h << "element piece " << b.piece_map.size() << "\nproperty list uint uint coarse_faces\nend_header\n";
+  }
   std::string s = h.str();
   for (size_t p = 0; p < b.piece_vertices.size(); ++p) {
     for (const auto& v : b.piece_vertices[p]) {
@@ -130,9 +150,15 @@ std::string pieces_ply_bytes(const BundleContent& b) {
     }
     base += static_cast<uint32_t>(b.piece_vertices[p].size());
   }
-  for (const auto& list : b.piece_map) {
-    put_u32(s, static_cast<uint32_t>(list.size()));
-    for (uint32_t t : list) put_u32(s, t);
+  if (table) {
+    for (const auto& list : b.piece_map) put_u32(s, static_cast<uint32_t>(list.size()));
+    for (const auto& list : b.piece_map)
+      for (uint32_t t : list) put_u32(s, t);
+  } else {
+    for (const auto& list : b.piece_map) {
+      put_u32(s, static_cast<uint32_t>(list.size()));
+      for (uint32_t t : list) put_u32(s, t);
+    }
   }
   return s;
 }

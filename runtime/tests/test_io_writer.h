@@ -42,7 +42,9 @@ struct ExrOptions {
   bool tiled = false;
 };
 
-// The bytes of coarse.ply / pieces.ply exactly as the spec lays them out.
+// The bytes of coarse.ply / pieces.ply exactly as the spec lays them out
+// (pieces.ply in the layout of the manifest's format_version: 1.3 and later keep
+// the map in fixed-size elements, 1.0-1.2 as one list per piece).
 std::string coarse_ply_bytes(const BundleContent& b);
 std::string pieces_ply_bytes(const BundleContent& b);
 void write_atlas_exr(const std::string& path, int width, int height, const std::vector<float>& rgba,

@@ -9,6 +9,11 @@ surface samples, all computed with ``hbake.bundle.atlas_lookup``; layout in
 docs/bundle-format.md, "Golden bundles"), and writes the corrupted variants of the
 smallest bundle into ``tests/golden/corrupt/`` with tests/corrupt.py.
 
+It also writes ``tests/golden/format-1.2/ridged_box_pp.hbundle``: the ridged block baked
+by ``--method pp`` and stored as format 1.2 (pieces.ply's map as one variable-length
+list per piece, the layout before 1.3), byte for byte what hbake's 1.2 writer made, so
+that the readers (``hbake validate``, the runtime) keep being tested on a 1.2 bundle.
+
 The C++ runtime's tests read the same files, so rerun this only on purpose (a
 format or pipeline change), and commit the results together.
 """
@@ -197,7 +202,8 @@ def expected_values(path: Path, seed: int = 7) -> dict:
         "format_version": m["format_version"],
         "atlas": {"width": w, "height": h},
         "coarse": {"vertices": len(v), "triangles": len(f)},
-        "pieces": {"count": len(b.piece_vertices)},
+        "pieces": {"count": len(b.piece_vertices),
+                   "coarse_faces": [np.asarray(m).astype(int).tolist() for m in b.piece_coarse_faces]},
         "tolerance": {
             "position": POSITION_TOL,
             "note": "metres; applies to lookups (all four channels), positions and heights. "
@@ -230,6 +236,64 @@ def bake_one(name: str, out_dir: Path) -> Path:
     return out
 
 
+#: The bundle kept in format 1.2 (see the module's docstring): name, its folder.
+LEGACY = ("ridged_box", "format-1.2")
+
+
+def write_pieces_ply_1_2(path: Path, maps_from: Path) -> None:
+    """Rewrite ``path`` (a 1.3 pieces.ply) in the layout of 1.0-1.2: the same vertices
+    and faces, then per piece a uint32 count and its coarse_faces (``maps_from`` is the
+    1.3 file, read with hbake's reader)."""
+    import struct
+
+    from hbake.bundle import read_pieces_ply
+
+    v, vid, f, fid, maps = read_pieces_ply(maps_from)
+    blob = maps_from.read_bytes()
+    off = blob.index(b"end_header\n") + len(b"end_header\n")
+    header = blob[:off].decode("ascii").split("\n")
+    assert header[2] == "comment hbundle pieces 1.3" and header[-4].startswith("element piece_coarse_face ")
+    header = header[:2] + ["comment hbundle pieces 1.0"] + header[3:-6] + [
+        f"element piece {len(maps)}", "property list uint uint coarse_faces", "end_header", ""]
+    body = blob[off:off + 16 * len(v) + 17 * len(f)]
+    lists = b"".join(struct.pack("<I", len(m)) + np.asarray(m, "<u4").tobytes() for m in maps)
+    path.write_bytes("\n".join(header).encode("ascii") + body + lists)
+
+
+def bake_legacy(out_dir: Path = HERE) -> Path:
+    """``<out_dir>/format-1.2/ridged_box_pp.hbundle`` (module docstring)."""
+    import hashlib
+
+    from hbake import bake
+    from hbake.bundle import manifest_bytes
+    from hbake.settings import BakeSettings
+
+    name, folder = LEGACY
+    build, overrides = GOLDEN[name]
+    dest = out_dir / folder
+    dest.mkdir(exist_ok=True)
+    out = dest / f"{name}_pp.hbundle"
+    if out.exists():
+        shutil.rmtree(out)
+    with tempfile.TemporaryDirectory() as tmp:
+        src = Path(tmp) / f"{name}.ply"
+        build().export(src)
+        new = Path(tmp) / "new.hbundle"
+        bake(src, new, BakeSettings().with_overrides(
+            {"load.units": "m", **overrides, "method": "pp"}, source="make_golden"))
+        shutil.copytree(new, out)
+        write_pieces_ply_1_2(out / "pieces.ply", new / "pieces.ply")
+    m = json.loads((out / "manifest.json").read_text())
+    blob = (out / "pieces.ply").read_bytes()
+    m["format_version"] = "1.2"
+    m["files"]["pieces"].update(sha256=hashlib.sha256(blob).hexdigest(), bytes=len(blob))
+    (out / "manifest.json").write_bytes(manifest_bytes(m))
+    problems = validate_bundle(out)
+    if problems:
+        raise SystemExit(f"{out}: invalid 1.2 bundle: {problems[0]}")
+    return out
+
+
 def main(out_dir: Path = HERE) -> None:
     import corrupt
 
@@ -245,6 +309,10 @@ def main(out_dir: Path = HERE) -> None:
         shutil.rmtree(dest)
     corrupt.write_variants(out_dir / f"{CORRUPT_SOURCE}.hbundle", dest)
     print(f"{dest}: {len(corrupt.VARIANTS)} corrupted variants of {CORRUPT_SOURCE}.hbundle")
+    legacy = bake_legacy(out_dir)
+    exp = expected_values(legacy)
+    (legacy.parent / f"{legacy.stem}.expected.json").write_text(json.dumps(exp, indent=2, sort_keys=True) + "\n")
+    print(f"{legacy}: format {exp['format_version']}")
 
 
 if __name__ == "__main__":

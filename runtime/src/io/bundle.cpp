@@ -760,7 +760,8 @@ Model load_bundle(const std::string& path, const LoadOptions& opts) {
   }
   model.atlas = io::read_atlas_exr(bytes[1], labels[1], info.atlas_spec, opts.decode_threads);
   if (opts.check_invariants) check_atlas_texels(model, info, labels[1]);
-  load_pieces(model, io::parse_pieces_ply(bytes[2], labels[2]), info, labels[2], opts.check_invariants);
+  load_pieces(model, io::parse_pieces_ply(bytes[2], labels[2], io::pieces_layout_is_table(info.format_version)), info,
+              labels[2], opts.check_invariants);
   prepare_surface_map(model);
   return model;
 }

@@ -65,8 +65,14 @@ struct PiecesPly {
   std::vector<std::vector<uint32_t>> coarse_faces;  // one list per piece record
 };
 // Strict reader: exactly the header of the spec; counts, list lengths and file
-// length must match. Errors are class `pieces`.
-PiecesPly parse_pieces_ply(const std::string& bytes, const std::string& label);
+// length must match. Errors are class `pieces`. `table_layout`: the layout of
+// format 1.3 and later (the map as the fixed-size elements `piece` (counts) and
+// `piece_coarse_face` (rows)); false: that of 1.0-1.2 (one variable-length list
+// per piece). pieces_layout_is_table() says which a format_version uses.
+PiecesPly parse_pieces_ply(const std::string& bytes, const std::string& label, bool table_layout = true);
+// Whether a bundle of `format_version` ("1.x", already checked) keeps the map in
+// the fixed-size elements of 1.3 (minor version 3 or more).
+bool pieces_layout_is_table(const std::string& format_version);
 
 // The atlas limit shared by hbake and the runtime (docs/input-contract.md):
 // each side in [1, kMaxAtlasSide], at most kMaxAtlasTexels texels (256 MiB of

@@ -76,7 +76,7 @@ size_t read_header(const std::string& bytes, const std::vector<std::string>& lin
     for (char c : s) out += (c >= 0x20 && c < 0x7f) ? c : '?';
     return out.size() > 60 ? out.substr(0, 60) + "..." : out;
   };
-  static const char* kCountNames[] = {"N", "M", "P"};
+  static const char* kCountNames[] = {"N", "M", "P", "K"};
   size_t nth = 0;
   for (size_t k = 0; k < lines.size(); ++k) {
     const std::string& want = lines[k];
@@ -94,7 +94,7 @@ size_t read_header(const std::string& bytes, const std::vector<std::string>& lin
     }
     if (!ok) {
       std::string shown = want;
-      if (hash != std::string::npos) shown.replace(hash, 1, kCountNames[std::min<size_t>(nth, 2)]);
+      if (hash != std::string::npos) shown.replace(hash, 1, kCountNames[std::min<size_t>(nth, 3)]);
       const size_t line_no = k + 1 + (had_comment && k >= 2 ? 1 : 0);  // as in the file
       fail(cls, label, "PLY header line " + std::to_string(line_no) + " is '" + printable(line) + "', expected '" + shown + "'");
     }
@@ -184,7 +184,116 @@ CoarsePly parse_coarse_ply(const std::string& bytes, const std::string& label) {
   return out;
 }
 
-PiecesPly parse_pieces_ply(const std::string& bytes, const std::string& label) {
+bool pieces_layout_is_table(const std::string& format_version) {
+  const size_t dot = format_version.find('.');
+  if (dot == std::string::npos) return true;
+  const std::string minor = format_version.substr(dot + 1);
+  if (minor.empty() || minor.find_first_not_of("0123456789") != std::string::npos) return true;
+  const size_t first = minor.find_first_not_of('0');
+  if (first == std::string::npos) return false;  // minor 0
+  const std::string digits = minor.substr(first);
+  return digits.size() > 1 || digits[0] >= '3';  // compared as digits (a 30-digit minor is >= 3)
+}
+
+namespace {
+
+// The vertex and face records shared by both layouts; `c` is at the first vertex.
+void read_piece_records(Cursor& c, uint64_t n, uint64_t m, PiecesPly& out, const std::string& label) {
+  out.vertices.resize(n);
+  out.vertex_piece.resize(n);
+  for (uint64_t i = 0; i < n; ++i) {
+    for (int k = 0; k < 3; ++k) out.vertices[i][k] = c.f32();
+    out.vertex_piece[i] = c.u32();
+  }
+  out.faces.resize(m);
+  out.face_piece.resize(m);
+  uint64_t bad = 0, first = 0;
+  for (uint64_t f = 0; f < m; ++f) {
+    const unsigned k = c.u8();
+    for (int i = 0; i < 3; ++i) out.faces[f][i] = c.u32();
+    out.face_piece[f] = c.u32();
+    if (k != 3 && bad++ == 0) first = f;
+  }
+  if (bad) {
+    fail(BundleErrorClass::pieces, label,
+         std::to_string(bad) + (bad == 1 ? " face record" : " face records") + " without 3 indices (first: face " +
+             std::to_string(first) + ")");
+  }
+}
+
+// Format 1.3: per piece a uint32 count, then all map rows (uint32 coarse
+// triangle ids), piece by piece. Every element has fixed-size records, so the
+// file length is known from the header.
+PiecesPly parse_pieces_table(const std::string& bytes, const std::string& label) {
+  const BundleErrorClass cls = BundleErrorClass::pieces;
+  static const std::vector<std::string> kHeader = {
+      "ply",
+      "format binary_little_endian 1.0",
+      "element vertex #",
+      "property float x",
+      "property float y",
+      "property float z",
+      "property uint piece",
+      "element face #",
+      "property list uchar uint vertex_indices",
+      "property uint piece",
+      "element piece #",
+      "property uint coarse_face_count",
+      "element piece_coarse_face #",
+      "property uint coarse_face",
+      "end_header",
+  };
+  std::vector<uint64_t> counts;
+  const size_t body = read_header(bytes, kHeader, cls, label, counts);
+  const uint64_t n = counts[0], m = counts[1], p = counts[2], k = counts[3];
+  constexpr uint64_t kVertexBytes = 16, kFaceBytes = 1 + 12 + 4;
+  const uint64_t want = n * kVertexBytes + m * kFaceBytes + 4 * p + 4 * k;
+  const uint64_t have = bytes.size() - body;
+  if (have != want) {
+    fail(cls, label, std::to_string(bytes.size()) + " bytes, the header's " + std::to_string(n) + " vertices, " +
+                         std::to_string(m) + " faces, " + std::to_string(p) + " pieces and " + std::to_string(k) +
+                         " coarse-face rows need " + std::to_string(body + want) +
+                         (have < want ? " (file is truncated)" : " (trailing bytes)"));
+  }
+  Cursor c(bytes, body);
+  PiecesPly out;
+  read_piece_records(c, n, m, out, label);
+  std::vector<uint32_t> lens(p);
+  uint64_t total = 0;
+  for (auto& len : lens) total += (len = c.u32());
+  if (total != k) {
+    fail(cls, label, "the pieces' coarse_face_count add up to " + std::to_string(total) +
+                         ", the piece_coarse_face element has " + std::to_string(k) + " rows");
+  }
+  out.coarse_faces.resize(p);
+  for (uint64_t q = 0; q < p; ++q) {
+    auto& list = out.coarse_faces[q];
+    list.resize(lens[q]);
+    for (auto& x : list) x = c.u32();
+  }
+  return out;
+}
+
+}  // namespace
+
+// The wording shared with hbake.bundle for a pieces.ply in the other layout.
+const char* const kPiecesLayout13 =
+    "the piece -> coarse-triangle map is in the layout of format 1.3 (elements piece and piece_coarse_face), "
+    "but the manifest's format_version is below 1.3 (one coarse_faces list per piece)";
+const char* const kPiecesLayout12 =
+    "the piece -> coarse-triangle map is in the layout of format 1.0-1.2 (one coarse_faces list per piece), "
+    "but the manifest's format_version is 1.3 or later (elements piece and piece_coarse_face)";
+
+PiecesPly parse_pieces_ply(const std::string& bytes, const std::string& label, bool table_layout) {
+  const std::string_view head(bytes.data(), std::min(bytes.size(), kMaxHeaderBytes));
+  const size_t end = head.find("end_header\n");
+  const std::string_view header = head.substr(0, end == std::string_view::npos ? head.size() : end);
+  if (table_layout && header.find("\nproperty list uint uint coarse_faces\n") != std::string_view::npos)
+    fail(BundleErrorClass::pieces, label, kPiecesLayout12);
+  if (!table_layout && header.find("\nelement piece_coarse_face ") != std::string_view::npos)
+    fail(BundleErrorClass::pieces, label, kPiecesLayout13);
+  if (table_layout) return parse_pieces_table(bytes, label);
+  // Format 1.0-1.2: the map as one variable-length list per piece.
   const BundleErrorClass cls = BundleErrorClass::pieces;
   static const std::vector<std::string> kHeader = {
       "ply",
@@ -214,25 +323,7 @@ PiecesPly parse_pieces_ply(const std::string& bytes, const std::string& label) {
                          std::to_string(body + fixed) + ")");
   }
   PiecesPly out;
-  out.vertices.resize(n);
-  out.vertex_piece.resize(n);
-  for (uint64_t i = 0; i < n; ++i) {
-    for (int k = 0; k < 3; ++k) out.vertices[i][k] = c.f32();
-    out.vertex_piece[i] = c.u32();
-  }
-  out.faces.resize(m);
-  out.face_piece.resize(m);
-  uint64_t bad = 0, first = 0;
-  for (uint64_t f = 0; f < m; ++f) {
-    const unsigned k = c.u8();
-    for (int i = 0; i < 3; ++i) out.faces[f][i] = c.u32();
-    out.face_piece[f] = c.u32();
-    if (k != 3 && bad++ == 0) first = f;
-  }
-  if (bad) {
-    fail(cls, label, std::to_string(bad) + (bad == 1 ? " face record" : " face records") + " without 3 indices (first: face " +
-                         std::to_string(first) + ")");
-  }
+  read_piece_records(c, n, m, out, label);
   out.coarse_faces.resize(p);
   for (uint64_t q = 0; q < p; ++q) {
     if (c.left() < 4) fail(cls, label, "file is truncated in the coarse_faces list of piece " + std::to_string(q));
