@@ -35,6 +35,11 @@ struct Model;
 // which the facing test of the clustering (cos > 0.2, 78 degrees) admits.
 constexpr double kJumpTexels = 4.0;
 
+// The mesh heights (hrt/depth.h HeightMode::mesh) visit the quads whose
+// centre lies within one texel of a face's UV triangle: their corners lie
+// within 1 + sqrt(2)/2 texels of it (rounded up).
+constexpr double kQuadReadMargin = 1.75;
+
 struct SurfaceMap {
   bool ready = false;
   // Per coarse face: the offsets w = f(q) - q over the atlas texels the face's
@@ -47,6 +52,11 @@ struct SurfaceMap {
   struct Face {
     Eigen::Vector3f axis = Eigen::Vector3f::UnitZ();
     float along = 0.0f, across = 0.0f, reach = 0.0f;
+    // |w| <= quad_reach (m) for every texel a usable atlas quad of the mesh
+    // heights reads (corners of quads whose centre lies within one texel of
+    // the UV triangle: texels within kQuadReadMargin of it), q the closest
+    // point of the face to the texel's UV. >= reach.
+    float quad_reach = 0.0f;
   };
   std::vector<Face> faces;
   // Per atlas texel (i, j), row-major W x H: 1 when the 2 x 2 lookup quad
@@ -58,6 +68,17 @@ struct SurfaceMap {
   std::vector<uint8_t> quad_ok;
   double jump = 0.0;            // m: kJumpTexels * texel_size (0: no texel size known, no jump test)
   uint64_t cut_quads = 0;       // quads with a filled corner cut by the jump test (for reports)
+  // Blocks of kQuadBlock x kQuadBlock quads (block (bi, bj) holds the quads
+  // with top-left texel in [bi B, bi B + B) x [bj B, bj B + B)), row-major
+  // blocks_w x blocks_h: the object-frame box of the corners of the block's
+  // usable quads (lo > hi when it has none). The mesh heights skip a whole
+  // block from it (beside the grid, behind the cull, occluded).
+  static constexpr int kQuadBlock = 8;
+  struct Block {
+    Eigen::Vector3f lo{1.0f, 1.0f, 1.0f}, hi{-1.0f, -1.0f, -1.0f};
+  };
+  std::vector<Block> blocks;
+  int blocks_w = 0, blocks_h = 0;
 
   // Upper bound (m) on the lateral offset of face f's points for the
   // object-frame unit direction n_obj.

@@ -253,11 +253,13 @@ bool plan_depth(const Model& A, const Pose& pose_a, const Model& B, const Pose& 
     const double h0 = n.dot(patch.window.origin);
     double lo_b = kInf, hi_a = -kInf, r_a = 0;
     const bool with_reach = opt.heights == HeightMode::mesh;
+    // The mesh heights read the corners of quads beside the UV triangle too.
+    auto face_reach = [&](const SurfaceMap::Face& sf) { return with_reach ? sf.quad_reach : sf.reach; };
     auto low_b = [&](const std::vector<uint32_t>& list) {
       for (uint32_t f : list) {
         if (f >= B.faces.size()) continue;
         for (int c = 0; c < 3; ++c)
-          lo_b = std::min(lo_b, n.dot(Tb * B.vertices[B.faces[f][c]]) - h0 - B.surface.faces[f].reach);
+          lo_b = std::min(lo_b, n.dot(Tb * B.vertices[B.faces[f][c]]) - h0 - face_reach(B.surface.faces[f]));
       }
     };
     auto high_a = [&](const std::vector<uint32_t>& list) {
@@ -265,8 +267,8 @@ bool plan_depth(const Model& A, const Pose& pose_a, const Model& B, const Pose& 
         if (f >= A.faces.size()) continue;
         for (int c = 0; c < 3; ++c) {
           const Vec3 p = Ta * A.vertices[A.faces[f][c]];
-          hi_a = std::max(hi_a, n.dot(p) - h0 + A.surface.faces[f].reach);
-          r_a = std::max(r_a, (p - c_a).norm() + A.surface.faces[f].reach);
+          hi_a = std::max(hi_a, n.dot(p) - h0 + face_reach(A.surface.faces[f]));
+          r_a = std::max(r_a, (p - c_a).norm() + face_reach(A.surface.faces[f]));
         }
       }
     };

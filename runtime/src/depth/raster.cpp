@@ -188,7 +188,7 @@ inline void write_seed(const Placement& pl, size_t k, double a_x, double a_y, do
 // whole range is on the far side of pl.cull (the face cannot matter; a NaN
 // cull never culls).
 inline bool culled_by_height(const Model& M, uint32_t f, const Placement& pl, double& hlo, double& hhi) {
-  const double reach = pl.surface->faces[f].reach;
+  const double reach = pl.mesh ? pl.surface->faces[f].quad_reach : pl.surface->faces[f].reach;
   hlo = kInf, hhi = -kInf;
   for (int c = 0; c < 3; ++c) {
     const double h = pl.nobj.dot(M.vertices[M.faces[f][c]]);
@@ -410,8 +410,10 @@ void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const
                           const double* ax, const double* ay) {
   const int S = pl.S;
   const SurfaceMap::Face& sf = pl.surface->faces[f];
-  // Whole-face culls: the face's full surface lies within `reach` of it.
-  const double R = sf.reach / pl.cell + 1.0;  // grid texels, plus a texel for the footprints
+  // Whole-face culls: every point a quad of the face reads lies within
+  // quad_reach of the face (hrt/surface.h).
+  const double reach = sf.quad_reach;
+  const double R = reach / pl.cell + 1.0;  // grid texels, plus a texel for the footprints
   if (std::max({x[0], x[1], x[2]}) + R < -0.5 || std::min({x[0], x[1], x[2]}) - R > S - 0.5 ||
       std::max({y[0], y[1], y[2]}) + R < -0.5 || std::min({y[0], y[1], y[2]}) - R > S - 0.5)
     return;
@@ -421,110 +423,261 @@ void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const
   const Atlas& at = M.atlas;
   const int W = at.width, H = at.height;
   if (W < 2 || H < 2) return;
-  // Quads (i, j) (top-left texel) whose centre (i + 0.5, j + 0.5) is within
-  // one texel of the UV triangle (edge distances in atlas texels).
   const double e1x = ax[1] - ax[0], e1y = ay[1] - ay[0], e2x = ax[2] - ax[0], e2y = ay[2] - ay[0];
   const double area2 = e1x * e2y - e2x * e1y;
   if (!(std::abs(area2) > 1e-12)) return;
+  // Occluded faces: where every texel the face can reach already holds a
+  // height at least as extreme as any of its points, it can change nothing
+  // (the max is exact whatever the order; mesh_order draws the most extreme
+  // faces first so that this test bites). Scanned only when the texels are
+  // fewer than the face's quads.
+  {
+    const int i0 = std::max(0, static_cast<int>(std::ceil(std::min({x[0], x[1], x[2]}) - R - 0.5)));
+    const int i1 = std::min(S - 1, static_cast<int>(std::floor(std::max({x[0], x[1], x[2]}) + R + 0.5)));
+    const int j0 = std::max(0, static_cast<int>(std::ceil(std::min({y[0], y[1], y[2]}) - R - 0.5)));
+    const int j1 = std::min(S - 1, static_cast<int>(std::floor(std::max({y[0], y[1], y[2]}) + R + 0.5)));
+    if (i0 > i1 || j0 > j1) return;
+    const double texels = static_cast<double>(i1 - i0 + 1) * (j1 - j0 + 1);
+    if (texels < 0.5 * std::abs(area2)) {
+      bool occluded = true;
+      for (int j = j0; j <= j1 && occluded; ++j) {
+        const double* row = pl.out + static_cast<size_t>(j) * S;
+        for (int i = i0; i <= i1; ++i)
+          if (pl.keep_max ? row[i] < hhi : row[i] > hlo) {
+            occluded = false;
+            break;
+          }
+      }
+      if (occluded) return;
+    }
+  }
+
+  // The quads worth visiting, as half-planes in atlas coordinates evaluated
+  // at a quad's centre (i + 0.5, j + 0.5): g[0] i + g[1] j + g[2] >= 0. Each
+  // row's quads are then one interval, found without testing every quad (a
+  // CAD part's flat side under a small window, a side face edge-on along n
+  // whose quads all project onto a few texels, are visited only where they
+  // can matter).
+  struct HalfPlane {
+    double gi, gj, g0;
+  };
+  HalfPlane hp[8];
+  int nh = 0;
+  // (1) Centre within one texel of the UV triangle.
   const double sgn = area2 > 0 ? 1.0 : -1.0;
-  double gx[3], gy[3], g0[3];
   for (int k = 0; k < 3; ++k) {
     const int k1 = (k + 1) % 3;
     double nx = -sgn * (ay[k1] - ay[k]), ny = sgn * (ax[k1] - ax[k]);
     const double len = std::hypot(nx, ny);
     nx /= len, ny /= len;
-    gx[k] = nx, gy[k] = ny, g0[k] = -(nx * ax[k] + ny * ay[k]) + 1.0;  // >= 0: within one texel inside
+    hp[nh++] = {nx, ny, -(nx * ax[k] + ny * ay[k]) + 1.0};
   }
-  double alo_x = std::min({ax[0], ax[1], ax[2]}), ahi_x = std::max({ax[0], ax[1], ax[2]});
-  double alo_y = std::min({ay[0], ay[1], ay[2]}), ahi_y = std::max({ay[0], ay[1], ay[2]});
+  // (2) Only where a quad's points can project onto the grid or lie on the
+  // near side of the height cull. The face's affine map from atlas to grid x,
+  // y and height (the coarse point a texel parameterizes, extrapolated past
+  // the edges); a point a quad reads lies within `reach` (m) of the closest
+  // face point to its texel, which is within 1.75 + 0.71 texels of the
+  // quad's centre: `slack` covers that step of the affine map.
   {
-    // Only the part of the face whose coarse points project within R of the
-    // grid can reach it (a full-surface point lies within `reach` of its
-    // coarse point): the grid grown by R, taken back to atlas coordinates by
-    // the face's affine map (grid -> atlas; a face that is not edge-on along
-    // n), bounds the quads worth visiting. A large face (a CAD part's flat
-    // side) under a small window is then visited only where it matters.
-    const double g1x = x[1] - x[0], g1y = y[1] - y[0], g2x = x[2] - x[0], g2y = y[2] - y[0];
-    const double garea = g1x * g2y - g2x * g1y;
-    const double glen2 = std::max({g1x * g1x + g1y * g1y, g2x * g2x + g2y * g2y, 1e-300});
-    if (std::abs(garea) > 1e-3 * glen2) {  // within ~0.06 degrees of edge-on: the whole face
-      const double inv = 1.0 / garea;
-      const double jxx = (e1x * g2y - e2x * g1y) * inv, jxy = (e2x * g1x - e1x * g2x) * inv;
-      const double jyx = (e1y * g2y - e2y * g1y) * inv, jyy = (e2y * g1x - e1y * g2x) * inv;
-      double lo_x = kInf, hi_x = -kInf, lo_y = kInf, hi_y = -kInf;
-      for (int k = 0; k < 4; ++k) {
-        const double gx_ = ((k & 1) ? S - 0.5 + R : -0.5 - R) - x[0];
-        const double gy_ = ((k & 2) ? S - 0.5 + R : -0.5 - R) - y[0];
-        const double px = ax[0] + jxx * gx_ + jxy * gy_, py = ay[0] + jyx * gx_ + jyy * gy_;
-        lo_x = std::min(lo_x, px), hi_x = std::max(hi_x, px);
-        lo_y = std::min(lo_y, py), hi_y = std::max(hi_y, py);
-      }
-      alo_x = std::max(alo_x, lo_x), ahi_x = std::min(ahi_x, hi_x);
-      alo_y = std::max(alo_y, lo_y), ahi_y = std::min(ahi_y, hi_y);
-      if (!(alo_x <= ahi_x + 2) || !(alo_y <= ahi_y + 2)) return;
+    double hc[3];
+    for (int c = 0; c < 3; ++c) hc[c] = pl.nobj.dot(M.vertices[M.faces[f][c]]) + pl.oh;
+    const double inv = 1.0 / area2;
+    // d/d(ax), d/d(ay) of a quantity with values q[0..2] at the corners.
+    auto affine = [&](const double* q, double& da, double& db) {
+      const double d1 = q[1] - q[0], d2 = q[2] - q[0];
+      da = (d1 * e2y - d2 * e1y) * inv;
+      db = (d2 * e1x - d1 * e2x) * inv;
+    };
+    auto add = [&](const double* q, double sign, double bound) {  // sign (q - bound) >= 0 at the corners' map
+      double da, db;
+      affine(q, da, db);
+      if (!std::isfinite(da) || !std::isfinite(db)) return;
+      const double slack = (kQuadReadMargin + 0.75) * std::hypot(da, db);
+      // sign (q0 + da (i + 0.5 - ax0) + db (j + 0.5 - ay0) - bound) + slack >= 0
+      hp[nh++] = {sign * da, sign * db, sign * (q[0] + da * (0.5 - ax[0]) + db * (0.5 - ay[0]) - bound) + slack};
+    };
+    const double Rg = reach / pl.cell;  // grid texels (gx, gy are per metre / cell)
+    add(x, +1.0, -0.5 - Rg);
+    add(x, -1.0, S - 0.5 + Rg);
+    add(y, +1.0, -0.5 - Rg);
+    add(y, -1.0, S - 0.5 + Rg);
+    if (std::isfinite(pl.cull)) {
+      if (pl.keep_max)
+        add(hc, +1.0, pl.cull - reach);
+      else
+        add(hc, -1.0, pl.cull + reach);
     }
   }
-  // Clamped in double first: a far face maps the grid to huge atlas coordinates.
-  auto clampi = [](double v, int lo, int hi) {
-    return static_cast<int>(std::clamp(v, static_cast<double>(lo) - 1.0, static_cast<double>(hi) + 1.0));
+  // Rows of quads: centres within one texel of the triangle's box.
+  auto clampi = [](double v, int lo, int hi) {  // clamped in double first (far faces, huge coordinates)
+    return static_cast<int>(std::clamp(v, static_cast<double>(lo), static_cast<double>(hi)));
   };
-  const int qi0 = std::max(0, clampi(std::floor(alo_x - 1.5), 0, W));
-  const int qi1 = std::min(W - 2, clampi(std::ceil(ahi_x + 0.5), 0, W));
-  const int qj0 = std::max(0, clampi(std::floor(alo_y - 1.5), 0, H));
-  const int qj1 = std::min(H - 2, clampi(std::ceil(ahi_y + 0.5), 0, H));
-  if (qi0 > qi1 || qj0 > qj1) return;
-  const int nq = qi1 - qi0 + 2;  // texels per row the quads read
-  // Two rows of projected texels. thread_local: grows to the widest face
-  // once per thread, so the frame loop does not allocate afterwards.
+  const int qi0 = clampi(std::floor(std::min({ax[0], ax[1], ax[2]}) - 1.5), 0, W - 2);
+  const int qi1 = clampi(std::ceil(std::max({ax[0], ax[1], ax[2]}) + 0.5), 0, W - 2);
+  const int qj0 = clampi(std::floor(std::min({ay[0], ay[1], ay[2]}) - 1.5), 0, H - 2);
+  const int qj1 = clampi(std::ceil(std::max({ay[0], ay[1], ay[2]}) + 0.5), 0, H - 2);
+  // The interval of row j, [lo, hi] (empty when lo > hi), widened by a
+  // hair: a quad visited in excess is still a piece of the full surface.
+  auto row_range = [&](int j, int& lo, int& hi) {
+    double flo = qi0, fhi = qi1;
+    const double cj = j + 0.5;
+    for (int k = 0; k < nh && flo <= fhi; ++k) {
+      const double rest = hp[k].gj * cj + hp[k].g0;  // + gi (i + 0.5) >= 0
+      const double eps = 1e-9 * (std::abs(rest) + std::abs(hp[k].gi) * (std::abs(flo) + std::abs(fhi)) + 1.0);
+      if (std::abs(hp[k].gi) < 1e-300) {
+        if (rest + eps < 0) flo = fhi + 1;
+      } else if (hp[k].gi > 0) {
+        flo = std::max(flo, -(rest + eps) / hp[k].gi - 0.5);
+      } else {
+        fhi = std::min(fhi, -(rest + eps) / hp[k].gi - 0.5);
+      }
+    }
+    if (!(flo <= fhi)) {
+      lo = 1, hi = 0;
+      return;
+    }
+    lo = static_cast<int>(std::ceil(flo));
+    hi = static_cast<int>(std::floor(fhi));
+  };
+
+  // Two rows of projected texels, indexed by i - qi0, with the interval of
+  // each that holds projections. thread_local: grows to the widest face once
+  // per thread, so the frame loop does not allocate afterwards.
+  const int nq = qi1 - qi0 + 2;
   thread_local std::vector<MeshCorner> rows;
   if (rows.size() < 2 * static_cast<size_t>(nq)) rows.resize(2 * static_cast<size_t>(nq));
   MeshCorner* top = rows.data();
   MeshCorner* bot = rows.data() + nq;
+  int top_row = -1, top_lo = 1, top_hi = 0, bot_row = -1, bot_lo = 1, bot_hi = 0;
   const float* rgba = at.rgba.data();
   const size_t stride = static_cast<size_t>(W) * 4;
-  auto project_row = [&](int j, MeshCorner* out) {
-    const float* t = rgba + static_cast<size_t>(j) * stride + static_cast<size_t>(qi0) * 4;
-    for (int k = 0; k < nq; ++k, t += 4) {
+  auto project = [&](int j, int i0, int i1, MeshCorner* out) {
+    const float* t = rgba + static_cast<size_t>(j) * stride + static_cast<size_t>(i0) * 4;
+    for (int i = i0; i <= i1; ++i, t += 4) {
       const double px = t[0], py = t[1], pz = t[2];
-      MeshCorner& c = out[k];
+      MeshCorner& c = out[i - qi0];
       c.x = pl.gx[0] * px + pl.gx[1] * py + pl.gx[2] * pz + pl.ox;
       c.y = pl.gy[0] * px + pl.gy[1] * py + pl.gy[2] * pz + pl.oy;
       c.h = pl.nobj[0] * px + pl.nobj[1] * py + pl.nobj[2] * pz + pl.oh;
       c.ok = std::isfinite(c.x) && std::isfinite(c.y) && std::isfinite(c.h);
     }
   };
-  project_row(qj0, top);
+  // Makes row buffer `buf` (holding texel row `row` over [lo, hi]) hold
+  // texel row j over at least [a, b].
+  auto ensure = [&](MeshCorner* buf, int& row, int& lo, int& hi, int j, int a, int b) {
+    if (row != j || lo > hi || b < lo - 1 || a > hi + 1) {
+      project(j, a, b, buf);
+      row = j, lo = a, hi = b;
+      return;
+    }
+    if (a < lo) project(j, a, lo - 1, buf), lo = a;
+    if (b > hi) project(j, hi + 1, b, buf), hi = b;
+  };
   const uint8_t* ok = pl.surface->quad_ok.data();
-  for (int j = qj0; j <= qj1; ++j) {
-    project_row(j + 1, bot);
-    const double cy = j + 0.5;
-    for (int i = qi0; i <= qi1; ++i) {
-      if (!ok[static_cast<size_t>(j) * W + i]) continue;
-      const double cx = i + 0.5;
-      bool in = true;
-      for (int k = 0; k < 3 && in; ++k) in = gx[k] * cx + gy[k] * cy + g0[k] >= 0;
-      if (!in) continue;
-      const int k = i - qi0;
-      const MeshCorner &c00 = top[k], &c10 = top[k + 1], &c01 = bot[k], &c11 = bot[k + 1];
-      if (!(c00.ok && c10.ok && c01.ok && c11.ok)) continue;
-      // A quad inside one texel's square (the common case where the atlas is
-      // finer than the grid): its highest corner is the highest point of its
-      // two triangles there, one update.
-      {
-        const double lx = std::min({c00.x, c10.x, c01.x, c11.x}), hx = std::max({c00.x, c10.x, c01.x, c11.x});
-        const double ly = std::min({c00.y, c10.y, c01.y, c11.y}), hy = std::max({c00.y, c10.y, c01.y, c11.y});
-        if (hx < -0.5 || lx > S - 0.5 || hy < -0.5 || ly > S - 0.5) continue;  // beside the grid
-        const double ci = std::floor(lx + 0.5), cj = std::floor(ly + 0.5);
-        if (hx < ci + 0.5 && hy < cj + 0.5 && ci >= 0 && cj >= 0 && ci < S && cj < S) {
-          double& o = pl.out[static_cast<size_t>(cj) * S + static_cast<size_t>(ci)];
-          o = pl.keep_max ? std::max({o, c00.h, c10.h, c01.h, c11.h}) : std::min({o, c00.h, c10.h, c01.h, c11.h});
-          continue;
+  const bool mx = pl.keep_max;
+  const double cull = pl.cull;
+  const bool cull_on = std::isfinite(cull);
+  // Block tests (SurfaceMap::Block): the box projected by its centre and
+  // half-extents; a block passes when its box can reach the grid, the near
+  // side of the cull, and a texel that holds less than the box's extreme.
+  constexpr int B = SurfaceMap::kQuadBlock;
+  const SurfaceMap& sm = *pl.surface;
+  auto block_passes = [&](int bi, int bj) {
+    const SurfaceMap::Block& blk = sm.blocks[static_cast<size_t>(bj) * sm.blocks_w + bi];
+    if (blk.lo.x() > blk.hi.x()) return false;  // no usable quad
+    const Vec3 c = 0.5 * (blk.lo.cast<double>() + blk.hi.cast<double>());
+    const Vec3 e = 0.5 * (blk.hi.cast<double>() - blk.lo.cast<double>());
+    const double xc = pl.gx.dot(c) + pl.ox, yc = pl.gy.dot(c) + pl.oy, hc = pl.nobj.dot(c) + pl.oh;
+    const double xe = pl.gx.cwiseAbs().dot(e), ye = pl.gy.cwiseAbs().dot(e), he = pl.nobj.cwiseAbs().dot(e);
+    if (xc + xe < -0.5 || xc - xe > S - 0.5 || yc + ye < -0.5 || yc - ye > S - 0.5) return false;
+    const double hx = mx ? hc + he : hc - he;  // the box's extreme
+    if (cull_on && (mx ? hx < cull : hx > cull)) return false;
+    const int i0 = std::max(0, static_cast<int>(std::ceil(xc - xe - 0.5)));
+    const int i1 = std::min(S - 1, static_cast<int>(std::floor(xc + xe + 0.5)));
+    const int j0 = std::max(0, static_cast<int>(std::ceil(yc - ye - 0.5)));
+    const int j1 = std::min(S - 1, static_cast<int>(std::floor(yc + ye + 0.5)));
+    if ((i1 - i0 + 1) * (j1 - j0 + 1) > B * B) return true;  // not worth the scan
+    for (int j = j0; j <= j1; ++j) {
+      const double* row = pl.out + static_cast<size_t>(j) * S;
+      for (int i = i0; i <= i1; ++i)
+        if (mx ? row[i] < hx : row[i] > hx) return true;
+    }
+    return false;  // occluded
+  };
+  thread_local std::vector<int> rlo, rhi;
+  thread_local std::vector<uint8_t> pass;
+  for (int bj = qj0 / B; bj <= qj1 / B; ++bj) {
+    const int ja = std::max(qj0, bj * B), jb = std::min(qj1, bj * B + B - 1);
+    rlo.assign(B, 1), rhi.assign(B, 0);
+    int ulo = std::numeric_limits<int>::max(), uhi = -1;
+    for (int j = ja; j <= jb; ++j) {
+      row_range(j, rlo[j - ja], rhi[j - ja]);
+      if (rlo[j - ja] <= rhi[j - ja]) ulo = std::min(ulo, rlo[j - ja]), uhi = std::max(uhi, rhi[j - ja]);
+    }
+    if (ulo > uhi) continue;
+    const int bi0 = ulo / B, bi1 = uhi / B;
+    pass.assign(static_cast<size_t>(bi1 - bi0 + 1), 0);
+    bool any = false;
+    for (int bi = bi0; bi <= bi1; ++bi) any |= (pass[bi - bi0] = block_passes(bi, bj)) != 0;
+    if (!any) continue;
+    for (int j = ja; j <= jb; ++j) {
+      const int lo_j = rlo[j - ja], hi_j = rhi[j - ja];
+      if (lo_j > hi_j) continue;
+      const uint8_t* okrow = ok + static_cast<size_t>(j) * W;
+      // Runs of passing blocks within [lo_j, hi_j].
+      for (int bi = lo_j / B; bi <= hi_j / B; ++bi) {
+        if (!pass[bi - bi0]) continue;
+        int bend = bi;
+        while (bend + 1 <= hi_j / B && pass[bend + 1 - bi0]) ++bend;
+        const int lo = std::max(lo_j, bi * B), hi = std::min(hi_j, bend * B + B - 1);
+        bi = bend;
+        // Texel rows j and j + 1 over [lo, hi + 1]; the buffer holding row j
+        // (last row's bottom) becomes the top.
+        if (bot_row == j) {
+          std::swap(top, bot);
+          std::swap(top_row, bot_row), std::swap(top_lo, bot_lo), std::swap(top_hi, bot_hi);
+        }
+        ensure(top, top_row, top_lo, top_hi, j, lo, hi + 1);
+        ensure(bot, bot_row, bot_lo, bot_hi, j + 1, lo, hi + 1);
+        for (int i = lo; i <= hi; ++i) {
+            if (!okrow[i]) continue;
+            const int k = i - qi0;
+            const MeshCorner &c00 = top[k], &c10 = top[k + 1], &c01 = bot[k], &c11 = bot[k + 1];
+            if (!(c00.ok && c10.ok && c01.ok && c11.ok)) continue;
+            const double hq = mx ? std::max({c00.h, c10.h, c01.h, c11.h}) : std::min({c00.h, c10.h, c01.h, c11.h});
+            if (cull_on && (mx ? hq < cull : hq > cull)) continue;  // on the far side of the cull
+            // A quad inside one texel's square (the common case where the atlas is
+            // finer than the grid): its highest corner is the highest point of its
+            // two triangles there, one update.
+            const double lx = std::min({c00.x, c10.x, c01.x, c11.x}), hx = std::max({c00.x, c10.x, c01.x, c11.x});
+            const double ly = std::min({c00.y, c10.y, c01.y, c11.y}), hy = std::max({c00.y, c10.y, c01.y, c11.y});
+            if (hx < -0.5 || lx > S - 0.5 || hy < -0.5 || ly > S - 0.5) continue;  // beside the grid
+            const double ci = std::floor(lx + 0.5), cj = std::floor(ly + 0.5);
+            if (hx < ci + 0.5 && hy < cj + 0.5 && ci >= 0 && cj >= 0 && ci < S && cj < S) {
+              double& o = pl.out[static_cast<size_t>(cj) * S + static_cast<size_t>(ci)];
+              o = mx ? std::max(o, hq) : std::min(o, hq);
+              continue;
+            }
+            {  // occluded: the (at most 2 x 2) texels its box meets already hold more
+              const int i0 = std::max(0, static_cast<int>(std::ceil(lx - 0.5)));
+              const int i1 = std::min(S - 1, static_cast<int>(std::floor(hx + 0.5)));
+              const int j0 = std::max(0, static_cast<int>(std::ceil(ly - 0.5)));
+              const int j1 = std::min(S - 1, static_cast<int>(std::floor(hy + 0.5)));
+              if (i1 - i0 <= 1 && j1 - j0 <= 1) {
+                bool occluded = true;
+                for (int jj = j0; jj <= j1 && occluded; ++jj)
+                  for (int ii = i0; ii <= i1 && occluded; ++ii) {
+                    const double o = pl.out[static_cast<size_t>(jj) * S + ii];
+                    occluded = mx ? o >= hq : o <= hq;
+                  }
+                if (occluded) continue;
+              }
+            }
+            splat_triangle(pl, c00, c10, c11);
+            splat_triangle(pl, c00, c11, c01);
         }
       }
-      splat_triangle(pl, c00, c10, c11);
-      splat_triangle(pl, c00, c11, c01);
     }
-    std::swap(top, bot);
   }
 }
 
@@ -678,6 +831,27 @@ ResolveMotion resolve_motion(const Eigen::Isometry3d& world_from_m, const Eigen:
   return r;
 }
 
+// The mesh heights' drawing order: the faces whose points can reach
+// farthest along the kept extreme first (the highest for keep_max), so that
+// raster_triangle_mesh's occlusion tests skip the faces and quads behind
+// them. The heights are a max (or min) and do not depend on the order.
+const std::vector<uint32_t>& mesh_order(const Model& M, const std::vector<uint32_t>& tris, const Placement& pl) {
+  thread_local std::vector<std::pair<double, uint32_t>> keyed;
+  thread_local std::vector<uint32_t> order;
+  if (!pl.mesh) return tris;
+  keyed.clear();
+  for (uint32_t f : tris) {
+    if (f >= M.faces.size()) continue;
+    double hlo, hhi;
+    culled_by_height(M, f, pl, hlo, hhi);
+    keyed.emplace_back(pl.keep_max ? -hhi : hlo, f);
+  }
+  std::sort(keyed.begin(), keyed.end());  // ties by face index: deterministic
+  order.clear();
+  for (const auto& k : keyed) order.push_back(k.second);
+  return order;
+}
+
 void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const std::vector<uint32_t>& tris,
                        const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, int border, bool keep_max,
                        double* out, HeightMode mode, double cull) {
@@ -686,7 +860,7 @@ void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m, co
   if (tris.empty() || !usable(M, w)) return;
   Placement pl = make_placement(M, world_from_m, n, u, v, w, border, keep_max, out, mode);
   pl.cull = cull;
-  for (uint32_t f : tris)
+  for (uint32_t f : mesh_order(M, tris, pl))
     if (f < M.faces.size()) raster_triangle(M, f, pl);
 }
 
@@ -709,7 +883,7 @@ void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from
       pl[k] = make_placement(M, world_from_m[k0 + k], n, u, v, w, borders ? borders[k0 + k] : 0, keep_max, out[k0 + k], mode);
       pl[k].cull = cull;
     }
-    for (uint32_t f : tris) {
+    for (uint32_t f : mesh_order(M, tris, pl[0])) {
       if (f >= M.faces.size()) continue;
       for (int k = 0; k < m; ++k) raster_triangle(M, f, pl[k]);
     }

@@ -102,6 +102,31 @@ void prepare_surface_map(Model& model) {
     }
   }
 
+  // Block boxes of the usable quads' corners (hrt/surface.h).
+  {
+    constexpr int B = SurfaceMap::kQuadBlock;
+    sm.blocks_w = (W + B - 1) / B, sm.blocks_h = (H + B - 1) / B;
+    sm.blocks.assign(static_cast<size_t>(sm.blocks_w) * sm.blocks_h, SurfaceMap::Block{});
+    for (int j = 0; j < H; ++j) {
+      const int j1 = std::min(j + 1, H - 1);
+      for (int i = 0; i < W; ++i) {
+        if (!sm.quad_ok[static_cast<size_t>(j) * W + i]) continue;
+        const int i1 = std::min(i + 1, W - 1);
+        SurfaceMap::Block& b = sm.blocks[static_cast<size_t>(j / B) * sm.blocks_w + i / B];
+        const bool first = b.lo.x() > b.hi.x();
+        for (const float* p : {at.texel(i, j), at.texel(i1, j), at.texel(i, j1), at.texel(i1, j1)}) {
+          const Eigen::Vector3f q(p[0], p[1], p[2]);
+          if (first && b.lo.x() > b.hi.x()) {
+            b.lo = b.hi = q;
+          } else {
+            b.lo = b.lo.cwiseMin(q);
+            b.hi = b.hi.cwiseMax(q);
+          }
+        }
+      }
+    }
+  }
+
   // A texel is read by some lookup only through a usable quad (a lookup in
   // an unusable one returns no height): texels none of whose four quads is
   // usable never bound a face's offsets. Without this, a texel one texel off
@@ -141,6 +166,7 @@ void prepare_surface_map(Model& model) {
     const double e1x = ax[1] - ax[0], e1y = ay[1] - ay[0], e2x = ax[2] - ax[0], e2y = ay[2] - ay[0];
     const double area2 = e1x * e2y - e2x * e1y;
     w.clear();
+    double quad_reach = 0.0;  // over the texels beyond kReadMargin (the rest: reach)
     if (std::abs(area2) > 1e-12) {
       // Clamped in double before the conversion (a bundle loaded without the
       // invariant checks may carry any UV).
@@ -148,10 +174,10 @@ void prepare_surface_map(Model& model) {
         if (!(x >= 0)) return 0;  // also NaN
         return x <= hi ? static_cast<int>(x) : hi;
       };
-      const int i0 = to_index(std::floor(std::min({ax[0], ax[1], ax[2]}) - kReadMargin), W - 1);
-      const int i1 = to_index(std::ceil(std::max({ax[0], ax[1], ax[2]}) + kReadMargin), W - 1);
-      const int j0 = to_index(std::floor(std::min({ay[0], ay[1], ay[2]}) - kReadMargin), H - 1);
-      const int j1 = to_index(std::ceil(std::max({ay[0], ay[1], ay[2]}) + kReadMargin), H - 1);
+      const int i0 = to_index(std::floor(std::min({ax[0], ax[1], ax[2]}) - kQuadReadMargin), W - 1);
+      const int i1 = to_index(std::ceil(std::max({ax[0], ax[1], ax[2]}) + kQuadReadMargin), W - 1);
+      const int j0 = to_index(std::floor(std::min({ay[0], ay[1], ay[2]}) - kQuadReadMargin), H - 1);
+      const int j1 = to_index(std::ceil(std::max({ay[0], ay[1], ay[2]}) + kQuadReadMargin), H - 1);
       if (i0 <= i1 && j0 <= j1) work += static_cast<uint64_t>(i1 - i0 + 1) * static_cast<uint64_t>(j1 - j0 + 1);
       if (work > budget) return;  // ready stays false
       const Eigen::Vector3d &P0 = model.vertices[tri[0]], &P1 = model.vertices[tri[1]], &P2 = model.vertices[tri[2]];
@@ -166,6 +192,7 @@ void prepare_surface_map(Model& model) {
           // triangle (the point a lookup that reads this texel is near), not
           // the extrapolated one, which for a needle lies metres away.
           double c[3] = {b0, b1, b2};
+          bool read = true;  // within kReadMargin (else only a mesh quad's corner)
           if (b0 < 0 || b1 < 0 || b2 < 0) {
             double best = std::numeric_limits<double>::infinity();
             for (int k = 0; k < 3; ++k) {  // segment from corner k to corner k+1
@@ -182,15 +209,21 @@ void prepare_surface_map(Model& model) {
                 c[l] = t;
               }
             }
-            if (best > kReadMargin * kReadMargin) continue;
+            if (best > kQuadReadMargin * kQuadReadMargin) continue;
+            read = best <= kReadMargin * kReadMargin;
           }
           if (!readable[static_cast<size_t>(j) * W + i]) continue;
           const float* p = at.texel(i, j);
           const Eigen::Vector3d q = c[0] * P0 + c[1] * P1 + c[2] * P2;
-          w.push_back(Eigen::Vector3d(p[0], p[1], p[2]) - q);
+          const Eigen::Vector3d d = Eigen::Vector3d(p[0], p[1], p[2]) - q;
+          if (read)
+            w.push_back(d);
+          else
+            quad_reach = std::max(quad_reach, d.norm());
         }
     }
     SurfaceMap::Face& out = sm.faces[f];
+    out.quad_reach = static_cast<float>(quad_reach * (1 + 1e-6)) + std::numeric_limits<float>::denorm_min();
     if (w.empty()) continue;  // no texel read: the face has no lateral offset to correct
     // The lateral offset of w and of -w are the same, and the relief goes
     // both ways (in and out of the coarse surface): the bound is about the
@@ -217,6 +250,7 @@ void prepare_surface_map(Model& model) {
     out.along = static_cast<float>(along * (1 + 1e-6)) + std::numeric_limits<float>::denorm_min();
     out.across = static_cast<float>(across * (1 + 1e-6)) + std::numeric_limits<float>::denorm_min();
     out.reach = static_cast<float>(reach * (1 + 1e-6)) + std::numeric_limits<float>::denorm_min();
+    out.quad_reach = std::max(out.quad_reach, out.reach);
   }
   sm.ready = true;
 }
