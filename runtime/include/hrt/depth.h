@@ -206,9 +206,10 @@ bool grid_undersamples(const Model& A, const Model& B, const Window& w);
 // keep_max: keep the largest h per texel (A), else the smallest (B). The
 // buffer is first filled with -inf (keep_max) or +inf. Heights are relative
 // to n . w.origin. Allocates nothing.
-// cull (surface mode only; NaN: none): a triangle on the costly path (its
-// lateral bound beyond the tolerance) whose points all lie below `cull`
-// (keep_max) or above it (else), relative to n . w.origin, is skipped: the
+// cull (NaN: none): in the surface mode a triangle on the costly path (its
+// lateral bound beyond the tolerance), in the mesh mode a face, a block of
+// quads or a quad, whose points all lie below `cull` (keep_max) or above it
+// (else), relative to n . w.origin, is skipped: the
 // caller knows no texel it covers can matter (compute_depth_gradient: A's
 // triangles that cannot reach B's lowest possible point, and B's that A's
 // highest cannot reach, less the configurations' motion: they could only
