@@ -191,3 +191,65 @@ def test_a_pin_tip_slid_over_the_box_keeps_its_depth(models):
     assert np.all(np.isfinite(ds)), "the contact was lost on the way"
     assert np.max(np.abs(np.diff(ds))) <= 1e-7
     assert np.max(np.abs(ds - press)) <= 1e-6
+
+
+# Paths over the textured plate (its sine: slope 2 pi a / lambda at most; the baked full
+# mesh is its chords, no steeper) for the continuity test: (tip index of
+# thinfeatures.pins_tips(), direction of travel in radians, start offset in grid texels).
+CONTINUITY_PATHS = ((1, 0.9, 0.0), (3, 2.1, 0.37), (5, 0.4, 0.61), (6, 1.3, 0.83))
+
+
+def continuity_path(models, tip: int, heading: float, start: float, N: int, steps: int):
+    """A pin's or fin's tip pressed 0.1 mm into the textured plate, then moved in steps of
+    1e-3 of the pins' atlas texel. Returns (deltas, step, cell)."""
+    pins, plate = models["pins"], models["plate"]
+    from scipy.spatial.transform import Rotation
+    r0, _ = Rotation.align_vectors([[0, 0, -1.0]], [TF.pins_tips()[tip]])
+    R = (Rotation.from_euler("z", 0.37) * r0).as_matrix()
+    centre = (FS.PLATE_SIDE / 2 + 0.7e-3, FS.PLATE_SIDE / 2 + 0.3e-3)
+    t = FS._rest_on(pins.mesh, R, plate, FS.IDENTITY, centre, 0.1e-3)
+    pose = [*t.tolist(), *FS._quat_from_matrix(R)]
+    first = FS.hrt_query(HRT, pins, plate, pose, FS.IDENTITY, N, heights="mesh")["contacts"]
+    cell = max(c["window"]["cell"] for c in first)
+    d = np.array([math.cos(heading), math.sin(heading), 0.0])
+    step = 1e-3 * pins.texel
+    offsets = [d * (start * cell + k * step) for k in range(steps)]
+    per = FS.path_query(HRT, pins, plate, pose, FS.IDENTITY, offsets, N=N, heights="mesh")
+    ds = np.array([max([c["delta"] for c in p if c["covered"] and not c.get("refused")] or [np.nan]) for p in per])
+    cells = {c["window"]["cell"] for p in per for c in p}
+    return ds, step, max(cells)
+
+
+def check_continuity(ds, step, cell, label):
+    """Bound per step, fixed from the geometry: the tips' contact faces (pin caps, fin
+    tops) lie parallel to the plate here, so a texel's highest point of A moves with A
+    and the plate's slope s_B changes B's lowest over a texel's square by at most s_B
+    per unit of motion: step * s_B. A sliver of A entering a new square pairs A's height
+    with that square's lowest point of B, which differs from a neighbouring square's by
+    at most s_B times two squares' diagonal: 2 sqrt(2) cell s_B. Float rounding of the
+    heights: 1e-9 m."""
+    s_b = 2 * math.pi * FS.PLATE_A / FS.PLATE_L
+    bound = step * s_b + 2 * math.sqrt(2) * cell * s_b + 1e-9
+    assert np.all(np.isfinite(ds)), f"{label}: the contact was lost on the way"
+    jumps = np.abs(np.diff(ds))
+    print(f"\n{label}: delta {ds.min() * 1e6:.2f}..{ds.max() * 1e6:.2f} um over {len(ds)} steps of "
+          f"{step * 1e9:.1f} nm; largest change per step {jumps.max() * 1e9:.2f} nm (bound {bound * 1e9:.0f} nm, "
+          f"grid texel {cell * 1e6:.0f} um)")
+    assert jumps.max() <= bound, f"{label}: a step changed delta by {jumps.max() * 1e9:.1f} nm > {bound * 1e9:.1f} nm"
+
+
+def test_a_pin_tip_moved_over_the_textured_plate_is_continuous(models):
+    """One path of the continuity test in `make test`; the four paths at N = 50 and 128
+    are in the slow sweep below."""
+    tip, heading, start = CONTINUITY_PATHS[0]
+    ds, step, cell = continuity_path(models, tip, heading, start, 50, 100)
+    check_continuity(ds, step, cell, f"tip {tip}, N = 50")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("N", (50, 128))
+@pytest.mark.parametrize("path", CONTINUITY_PATHS, ids=lambda p: f"tip{p[0]}")
+def test_tips_and_fins_moved_over_the_textured_plate_are_continuous(models, path, N):
+    tip, heading, start = path
+    ds, step, cell = continuity_path(models, tip, heading, start, N, 300)
+    check_continuity(ds, step, cell, f"tip {tip}, N = {N}")
