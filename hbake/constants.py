@@ -128,6 +128,16 @@ XATLAS_MAX_SCALED_COORDINATE = 1e6
 #: size; stop when the density is known to within this ratio.
 PACK_SEARCH_RATIO = 1.02
 PACK_SEARCH_MAX_STEPS = 14
+#: Long charts cap the density: a chart must fit the page at one density (see below), so
+#: one long chart (the hammer's handle: 4 strips the length of the part) sets the texel of
+#: the whole atlas and leaves the rest of the page empty (41.6 % covered). The search is
+#: therefore repeated with the charts longer than each of these fractions of the page's
+#: side (at the density that would fill the page) cut across into slabs, and the densest
+#: packing of all is kept (hbake/parameterize.py). Measured with `hbake bake` on the
+#: shared models (README, "The atlas"): 1 cuts only the charts that cannot fit the page
+#: (hammer 41.6 -> 61.5 %), 0.5 and 0.3 gain on terrain-like and organic parts; finer
+#: cuts only add padding.
+PACK_SPLIT_FRACTIONS = (1.0, 0.5, 0.3)
 #: A packing is accepted only when every chart of at least PACK_DENSITY_MIN_CHART_TEXELS2
 #: texels^2 has at least this fraction of the requested texel density (linear): xatlas
 #: shrinks charts that do not fit its page on their own (see hbake/parameterize.py).

@@ -9,6 +9,11 @@ search keeps a single page; for a non-square one, xatlas sizes one atlas to the 
 packing in which xatlas shrank a chart to fit (it does that to charts larger than its
 page, leaving the others at the requested density): every chart gets one texel density,
 which is what the manifest's texel size and the Sec. 7.2 resolution limit assume.
+Then a chart longer than the page caps the density of the whole atlas (the hammer's
+handle: 41.6 % of the page covered), so the search is repeated on xatlas's charts with
+those longer than each of C.PACK_SPLIT_FRACTIONS of the page cut across into slabs
+(``split_long_charts``; xatlas packs them as given, ``use_input_mesh_uvs``), and the
+densest packing is kept; on a tie, xatlas's own.
 Charts keep ``padding``
 texels between them and
 xatlas's ``bilinear`` margin, so a bilinear lookup inside one chart never reads a texel
@@ -60,6 +65,8 @@ def parameterize(vertices: np.ndarray, faces: np.ndarray,
 
     scale = xatlas_scale(vertices, faces)
     best = _search(vertices, faces, settings, area, uniform=True, scale=scale)
+    if best is not None:
+        best = _split_and_repack(vertices, faces, settings, area, scale, best)
     if best is None:
         # Every chart at one density never fitted (cannot happen with xatlas's own charts,
         # which fit at a small enough density; kept so a future xatlas cannot fail a bake).
@@ -91,7 +98,106 @@ def xatlas_scale(vertices: np.ndarray, faces: np.ndarray) -> float:
     return math.ldexp(1.0, k)
 
 
-def _search(vertices, faces, settings, area, uniform, scale=1.0):
+def _split_and_repack(vertices, faces, settings, area, scale, best):
+    """The densest of ``best`` (xatlas's own charts) and the packings of the same charts
+    with those longer than C.PACK_SPLIT_FRACTIONS of the page cut across (see the module
+    doc). A tie keeps the earlier candidate, so the choice is deterministic."""
+    W, H = settings.atlas_width, settings.atlas_height
+    fill = math.sqrt(W * H / area)             # texels per meter that would fill W x H
+    chart_uvs = _chart_uvs(vertices, faces, settings, fill, scale)
+    if chart_uvs is None:
+        return best
+    seen = set()
+    for frac in C.PACK_SPLIT_FRACTIONS:
+        # the page's shorter side at the fill density, in meters
+        uvs, pieces = split_long_charts(faces, chart_uvs, frac * min(W, H) / fill)
+        if pieces is None or pieces in seen:
+            continue                            # nothing cut, or the same cut as before
+        seen.add(pieces)
+        res = _search(vertices, faces, settings, area, uniform=True, scale=scale,
+                      input_uvs=uvs)
+        if res is not None and res.texels_per_unit > best.texels_per_unit:
+            best = res
+    return best
+
+
+def _chart_uvs(vertices, faces, settings, texels_per_unit, scale) -> np.ndarray | None:
+    """xatlas's charts of the mesh, flattened: per-corner (M, 3, 2) UVs in meters (one
+    UV unit is one meter on the surface, up to xatlas's distortion), charts apart in UV.
+    None when xatlas left a face out of every chart."""
+    import xatlas
+
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(np.ascontiguousarray(np.asarray(vertices, dtype=np.float64) * scale,
+                                        dtype=np.float32),
+                   np.ascontiguousarray(faces, dtype=np.uint32))
+    po = xatlas.PackOptions()
+    po.resolution = 0                     # one atlas sized to the content
+    po.texels_per_unit = float(texels_per_unit) / scale
+    po.padding = int(settings.padding)
+    po.bilinear = True
+    atlas.generate(_chart_options(settings), po)
+    vmap, idx, uv = atlas.get_mesh(0)
+    idx = np.asarray(idx, dtype=np.int64).reshape(-1, 3)
+    if idx.shape != faces.shape or not np.array_equal(np.asarray(vmap, dtype=np.int64)[idx], faces):
+        return None
+    px = np.asarray(uv, dtype=np.float64)[idx] * np.array([atlas.width, atlas.height], dtype=np.float64)
+    return px / float(texels_per_unit)
+
+
+def split_long_charts(faces: np.ndarray, uvs: np.ndarray, cap: float):
+    """Cut every chart of per-corner ``uvs`` whose longer side passes ``cap`` (UV units)
+    across that side into ceil(side / cap) slabs of equal width (a face goes to the slab
+    of its centroid), and move every piece to a cell of its own so that no two pieces
+    share a UV edge. Returns the new UVs (same shape, float64) and the number of pieces,
+    or (uvs, None) when no chart is that long. The flattening inside a piece is
+    unchanged, only translated."""
+    charts = chart_labels(faces, uvs.astype(np.float32))
+    piece = charts.copy()
+    nxt = int(charts.max()) + 1
+    cut = False
+    for c in range(int(charts.max()) + 1):
+        members = np.nonzero(charts == c)[0]
+        p = uvs[members].reshape(-1, 2)
+        lo, ext = p.min(axis=0), p.max(axis=0) - p.min(axis=0)
+        ax = int(np.argmax(ext))
+        k = int(math.ceil(ext[ax] / cap)) if cap > 0 else 1
+        if k <= 1:
+            continue
+        cut = True
+        centroid = uvs[members, :, ax].mean(axis=1)
+        slab = np.minimum(((centroid - lo[ax]) / ext[ax] * k).astype(np.int64), k - 1)
+        for j in range(1, k):
+            sel = members[slab == j]
+            if len(sel):
+                piece[sel] = nxt
+                nxt += 1
+    if not cut:
+        return uvs, None
+    ids, piece = np.unique(piece, return_inverse=True)
+    n = len(ids)
+    out = np.empty_like(uvs, dtype=np.float64)
+    lo = np.full((n, 2), np.inf)
+    hi = np.full((n, 2), -np.inf)
+    np.minimum.at(lo, piece, uvs.min(axis=1))
+    np.maximum.at(hi, piece, uvs.max(axis=1))
+    cell = float((hi - lo).max()) * 1.25 + 1e-9
+    cols = int(math.ceil(math.sqrt(n)))
+    origin = np.stack([np.arange(n) % cols, np.arange(n) // cols], axis=1) * cell
+    out[:] = uvs - lo[piece][:, None, :] + origin[piece][:, None, :]
+    return out, n
+
+
+def _chart_options(settings):
+    import xatlas
+
+    co = xatlas.ChartOptions()
+    co.max_cost = float(settings.max_chart_cost)
+    co.normal_deviation_weight = float(settings.normal_deviation_weight)
+    return co
+
+
+def _search(vertices, faces, settings, area, uniform, scale=1.0, input_uvs=None):
     """Bisection for the densest packing that fits one W x H page (see the module doc)."""
     W, H = settings.atlas_width, settings.atlas_height
     # Start from the density at which the charts, without padding or distortion, would
@@ -100,7 +206,7 @@ def _search(vertices, faces, settings, area, uniform, scale=1.0):
     lo = hi = math.sqrt(W * H / area)
     best = None
     for _ in range(C.PACK_SEARCH_MAX_STEPS):
-        res = _pack(vertices, faces, settings, hi, uniform, scale)
+        res = _pack(vertices, faces, settings, hi, uniform, scale, input_uvs)
         if res is None:
             break
         lo, best = hi, res
@@ -108,7 +214,7 @@ def _search(vertices, faces, settings, area, uniform, scale=1.0):
     if best is None:
         for _ in range(C.PACK_SEARCH_MAX_STEPS):
             lo *= 0.7
-            res = _pack(vertices, faces, settings, lo, uniform, scale)
+            res = _pack(vertices, faces, settings, lo, uniform, scale, input_uvs)
             if res is not None:
                 best = res
                 break
@@ -118,7 +224,7 @@ def _search(vertices, faces, settings, area, uniform, scale=1.0):
     steps = 0
     while hi / lo > C.PACK_SEARCH_RATIO and steps < C.PACK_SEARCH_MAX_STEPS:
         mid = math.sqrt(lo * hi)
-        res = _pack(vertices, faces, settings, mid, uniform, scale)
+        res = _pack(vertices, faces, settings, mid, uniform, scale, input_uvs)
         if res is not None:
             lo, best = mid, res
         else:
@@ -267,22 +373,33 @@ def snap_small_charts(faces: np.ndarray, uvs: np.ndarray, W: int, H: int) -> np.
 
 
 def _pack(vertices, faces, settings: ParameterizeSettings, texels_per_unit: float,
-          uniform: bool = True, scale: float = 1.0) -> Parameterization | None:
+          uniform: bool = True, scale: float = 1.0,
+          input_uvs: np.ndarray | None = None) -> Parameterization | None:
     """Pack at the given density (texels per meter); None when the charts do not fit one
     W x H atlas (or, with ``uniform``, when xatlas had to shrink a chart to make them fit).
     xatlas gets the vertices times ``scale`` (a power of two, see xatlas_scale) and the
-    density divided by it, which is the same packing in texels."""
+    density divided by it, which is the same packing in texels. With ``input_uvs``
+    (per-corner UVs in meters, from split_long_charts) xatlas packs those charts as they
+    are (``use_input_mesh_uvs``, one vertex per corner) instead of making its own."""
     import xatlas
 
     W, H = settings.atlas_width, settings.atlas_height
     atlas = xatlas.Atlas()
     # vertices hold float32 values; times a power of two they stay exact
-    atlas.add_mesh(np.ascontiguousarray(np.asarray(vertices, dtype=np.float64) * scale,
-                                        dtype=np.float32),
-                   np.ascontiguousarray(faces, dtype=np.uint32))
-    co = xatlas.ChartOptions()
-    co.max_cost = float(settings.max_chart_cost)
-    co.normal_deviation_weight = float(settings.normal_deviation_weight)
+    v = np.asarray(vertices, dtype=np.float64) * scale
+    if input_uvs is None:
+        atlas.add_mesh(np.ascontiguousarray(v, dtype=np.float32),
+                       np.ascontiguousarray(faces, dtype=np.uint32))
+        co = _chart_options(settings)
+        corners = faces
+    else:
+        corners = np.arange(3 * len(faces), dtype=np.int64).reshape(-1, 3)
+        atlas.add_mesh(np.ascontiguousarray(v[faces].reshape(-1, 3), dtype=np.float32),
+                       np.ascontiguousarray(corners, dtype=np.uint32), None,
+                       np.ascontiguousarray(np.asarray(input_uvs, dtype=np.float64).reshape(-1, 2)
+                                            * scale, dtype=np.float32))
+        co = xatlas.ChartOptions()
+        co.use_input_mesh_uvs = True
     po = xatlas.PackOptions()
     po.resolution = W if W == H else 0
     po.texels_per_unit = float(texels_per_unit) / scale
@@ -297,7 +414,7 @@ def _pack(vertices, faces, settings: ParameterizeSettings, texels_per_unit: floa
     vmap, idx, uv = atlas.get_mesh(0)
     idx = np.asarray(idx, dtype=np.int64).reshape(-1, 3)
     vmap = np.asarray(vmap, dtype=np.int64)
-    if idx.shape != faces.shape or not np.array_equal(vmap[idx], faces):
+    if idx.shape != faces.shape or not np.array_equal(vmap[idx], corners):
         raise BakeFailedError("xatlas changed the face order of the coarse mesh")
     # xatlas's normalised uv times its size is the position in texels from the top-left
     # corner of its atlas; place that at the top-left of the W x H atlas.
