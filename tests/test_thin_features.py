@@ -121,12 +121,41 @@ def test_thin_features_sweep_20_orientations(models, shape, seed):
 def test_a_pin_lowered_into_the_box_never_passes_through(models):
     """A pin (tilted 23 degrees from the block's normal) tip first into the plain box,
     from 0.1 mm above to 2 mm deep in 20 um steps."""
-    pins, box = models["pins"], models["box"]
-    tip = TF.pins_tips()[1]
+    worst = lowered(models, 1, "box")
+    # The pin's flat cap meets the box's flat top face to face (its axis along -z): the
+    # shortfall is float rounding (the float32 atlas, ~1e-8 m here) and the cap's flat
+    # triangles: 1 um covers both with margin.
+    assert worst <= 1e-6, f"largest shortfall {worst * 1e6:.2f} um"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("tip", (
+    3,
+    pytest.param(5, marks=pytest.mark.xfail(strict=True, reason=(
+        "open: 1.88-1.98 mm deep a second patch appears with n 66 degrees off vertical "
+        "(0.917, 0.007, -0.398) and reads 2.27 mm against 3.78 mm of footprint truth along "
+        "that n (bound 1.42 mm); the patches along the vertical read within 0.01 mm"))),
+    6,
+))
+def test_pins_and_fins_lowered_into_the_textured_plate_never_pass_through(models, tip):
+    """The 61-degree pin and two fins, tip first into the textured plate, 0.1 mm above to
+    2 mm deep in 20 um steps: delta >= truth - bound at every step, a contact wherever
+    the truth exceeds the bound."""
+    lowered(models, tip, "plate")
+
+
+def lowered(models, tip_index: int, plate: str) -> float:
+    """Lowers tip ``tip_index`` of the pins block into ``plate``; asserts the pass-through
+    rules and returns the largest shortfall (truth - delta, m)."""
+    pins, box = models["pins"], models[plate]
+    tip = TF.pins_tips()[tip_index]
     from scipy.spatial.transform import Rotation
     r0, _ = Rotation.align_vectors([[0, 0, -1.0]], [tip])
     R = (Rotation.from_euler("z", 0.37) * r0).as_matrix()
-    centre = (FS.BOX_SIZE[0] / 2, FS.BOX_SIZE[1] / 2)
+    if plate == "box":
+        centre = (FS.BOX_SIZE[0] / 2, FS.BOX_SIZE[1] / 2)
+    else:
+        centre = (FS.PLATE_SIDE / 2 + 0.7e-3, FS.PLATE_SIDE / 2 + 0.3e-3)
     t = FS._rest_on(pins.mesh, R, box, FS.IDENTITY, centre, -0.1e-3)   # 0.1 mm above
     pose = [*t.tolist(), *FS._quat_from_matrix(R)]
     steps = np.arange(0, 2.1e-3 + 1e-9, 20e-6)
@@ -152,12 +181,9 @@ def test_a_pin_lowered_into_the_box_never_passes_through(models):
             fails.append((round(s * 1e3, 3), reported, truth, bound))
         if truth > bound and not (reported > 0):
             fails.append((round(s * 1e3, 3), reported, truth, bound, "no contact"))
-    print(f"\npin into the box, {len(steps)} steps to 2 mm: largest shortfall {worst * 1e6:.1f} um")
+    print(f"\ntip {tip_index} into the {plate}, {len(steps)} steps to 2 mm: largest shortfall {worst * 1e6:.1f} um")
     assert not fails, fails[:5]
-    # The pin's flat cap meets the box's flat top face to face (its axis along -z): the
-    # shortfall is float rounding (the float32 atlas, ~1e-8 m here) and the cap's flat
-    # triangles: 1 um covers both with margin.
-    assert worst <= 1e-6, f"largest shortfall {worst * 1e6:.2f} um"
+    return worst
 
 
 def test_a_pin_tip_slid_over_the_box_keeps_its_depth(models):
