@@ -56,7 +56,11 @@ class Parameterization:
 
 
 def parameterize(vertices: np.ndarray, faces: np.ndarray,
-                 settings: ParameterizeSettings | None = None) -> Parameterization:
+                 settings: ParameterizeSettings | None = None, *,
+                 split_long: bool = True) -> Parameterization:
+    """Charts and packing of the coarse mesh (see the module doc). ``split_long``: also
+    try the packings with long charts cut into slabs (the cage route); False keeps
+    xatlas's own charts whole (the preserve route, whose seams follow them)."""
     settings = settings or ParameterizeSettings()
     W, H = settings.atlas_width, settings.atlas_height
     area = float(face_areas(vertices, faces).sum())
@@ -65,7 +69,7 @@ def parameterize(vertices: np.ndarray, faces: np.ndarray,
 
     scale = xatlas_scale(vertices, faces)
     best = _search(vertices, faces, settings, area, uniform=True, scale=scale)
-    if best is not None:
+    if best is not None and split_long:
         best = _split_and_repack(vertices, faces, settings, area, scale, best)
     if best is None:
         # Every chart at one density never fitted (cannot happen with xatlas's own charts,

@@ -526,8 +526,12 @@ def bake_preserve(full_vertices, full_faces, settings, *, input_name: str = "inp
         proxy = simplify(FVk, FF, dataclasses.replace(settings.simplify, target_faces=proxy_faces),
                          input_closed=input_closed)
     with _stage("charts"):
+        # xatlas's own charts, whole: the transfer fits the full mesh's seams to the chart
+        # outlines, and slabs cut across a chart only add seams to fit (on the hammer the
+        # worst full-to-coarse error went from 42 um to 0.70 mm with them).
         pparam = parameterize(proxy.vertices, proxy.faces,
-                              dataclasses.replace(settings.parameterize, padding=ps.padding))
+                              dataclasses.replace(settings.parameterize, padding=ps.padding),
+                              split_long=False)
         # texels per meter: a meter is k units of the scaled frame
         tpu_k = pparam.texels_per_unit
         pparam = dataclasses.replace(pparam, texels_per_unit=tpu_k * k)
