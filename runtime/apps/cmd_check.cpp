@@ -3,6 +3,7 @@
 // main's BundleError handler (one line "hrt: error: <class>: <message>" on
 // stderr, exit code 3); with --json a JSON object {"ok": false, "error":
 // {"class", "message"}} is printed on stdout first.
+#include <cstdint>
 #include <cstdio>
 #include <memory>
 #include <string>
@@ -11,6 +12,7 @@
 
 #include "commands.h"
 #include "hrt/model.h"
+#include "hrt/surface.h"
 
 namespace hrt_cli {
 namespace {
@@ -34,6 +36,7 @@ nlohmann::json summary_json(const hrt::Model& m) {
   nlohmann::json inertia = nlohmann::json::array();
   for (int i = 0; i < 3; ++i) inertia.push_back({mass.inertia(i, 0), mass.inertia(i, 1), mass.inertia(i, 2)});
   const auto& q = m.quality;
+  const hrt::SurfaceCoverage sc = hrt::surface_coverage(m);
   return {
       {"ok", true},
       {"bundle", m.path},
@@ -61,6 +64,7 @@ nlohmann::json summary_json(const hrt::Model& m) {
         {"hull_deviation", q.hull_deviation},
         {"min_wavelength", q.min_wavelength},
         {"bbox_diagonal", q.bbox_diagonal}}},
+      {"surface", {{"quads", sc.quads}, {"cut_quads", sc.cut}, {"widest_cut", sc.widest_cut}}},
       {"warnings", m.manifest.at("warnings")},
   };
 }
@@ -81,6 +85,14 @@ void print_text(const hrt::Model& m, const nlohmann::json& s) {
   std::printf("quality     displacement outward %.4g m, inward %.4g m, hull deviation %.4g m\n", q.displacement_outward,
               q.displacement_inward, q.hull_deviation);
   std::printf("            min wavelength %.4g m, bbox diagonal %.4g m\n", q.min_wavelength, q.bbox_diagonal);
+  // The guarantee of the mesh heights holds on usable quads (docs/bundle-format.md).
+  const auto& sf = s["surface"];
+  const uint64_t cut = sf["cut_quads"].get<uint64_t>();
+  std::printf("surface     %llu atlas quads inside the UV triangles, %llu cut by a discontinuity",
+              static_cast<unsigned long long>(sf["quads"].get<uint64_t>()), static_cast<unsigned long long>(cut));
+  if (cut > 0)
+    std::printf(" (--heights mesh sees no surface between their corners, up to %.4g m apart)", sf["widest_cut"].get<double>());
+  std::printf("\n");
   for (const auto& w : m.manifest.at("warnings")) std::printf("warning     %s\n", w.get<std::string>().c_str());
   std::printf("ok\n");
 }

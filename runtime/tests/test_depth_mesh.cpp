@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "hrt/depth.h"
+#include "hrt/surface.h"
 #include "synthetic.h"
 
 namespace {
@@ -247,4 +248,43 @@ TEST(MeshHeights, DrawingOrderAndTheCullChangeNoHeightThatMatters) {
       EXPECT_EQ(hc[t], h[t]) << "texel " << t;
     }
   EXPECT_GT(kept, 0);
+}
+
+// hrt check's `surface` line (hrt::surface_coverage): one atlas texel inside the
+// textured face moved 3 mm off its place cuts exactly the four quads that read it
+// (their edges to it pass the jump length), and the widest cut edge is the moved
+// texel's distance to its farthest neighbour, computed here from the atlas itself.
+TEST(MeshHeights, SurfaceCoverageCountsTheQuadsADiscontinuityCuts) {
+  hrt::synth::SynthBlock B = ridged_block();
+  hrt::Model& M = B.model;
+  const hrt::SurfaceCoverage before = hrt::surface_coverage(M);
+  EXPECT_GT(before.quads, 1000u);
+  // A texel at the centre of one of the face's UV triangles.
+  const uint32_t f = B.face_tris[B.face_tris.size() / 2];
+  const int W = M.atlas.width, H = M.atlas.height;
+  double cx = 0, cy = 0;
+  for (int c = 0; c < 3; ++c) {
+    cx += (M.uvs[f][c].x() * W - 0.5) / 3;
+    cy += ((1.0 - M.uvs[f][c].y()) * H - 0.5) / 3;
+  }
+  const int ti = static_cast<int>(std::lround(cx)), tj = static_cast<int>(std::lround(cy));
+  // The four quads around it must lie inside UV triangles and be usable now.
+  for (int dj = -1; dj <= 0; ++dj)
+    for (int di = -1; di <= 0; ++di) ASSERT_TRUE(M.surface.quad_ok[static_cast<size_t>(tj + dj) * W + ti + di]);
+  float* t = &M.atlas.rgba[(static_cast<size_t>(tj) * W + ti) * 4];
+  t[2] += 3e-3f;  // 3 mm along z: far past the jump length (4 texels, ~0.3 mm)
+  double widest = 0;
+  for (int dj = -1; dj <= 1; ++dj)
+    for (int di = -1; di <= 1; ++di) {
+      if ((di == 0) == (dj == 0)) continue;  // the four edge neighbours
+      const float* n = M.atlas.texel(ti + di, tj + dj);
+      widest = std::max(widest, std::sqrt(static_cast<double>(n[0] - t[0]) * (n[0] - t[0]) +
+                                          static_cast<double>(n[1] - t[1]) * (n[1] - t[1]) +
+                                          static_cast<double>(n[2] - t[2]) * (n[2] - t[2])));
+    }
+  hrt::prepare_surface_map(M);
+  const hrt::SurfaceCoverage after = hrt::surface_coverage(M);
+  EXPECT_EQ(after.quads, before.quads);
+  EXPECT_EQ(after.cut, before.cut + 4);
+  EXPECT_NEAR(after.widest_cut, std::max(before.widest_cut, widest), 1e-9);
 }

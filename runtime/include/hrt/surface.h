@@ -93,4 +93,19 @@ struct SurfaceMap {
 // quality.texel_size. O(atlas texels + faces); allocates model-sized arrays.
 void prepare_surface_map(Model& model);
 
+// Where the atlas's grid mesh leaves the surface out: the quads whose centre
+// lies inside a UV triangle (every lookup inside the triangles reads one),
+// and those of them that are not usable (SurfaceMap::quad_ok: a corner
+// unfilled, or an edge longer than the jump length, a discontinuity such as
+// the two walls of a feature thinner than the texels). The mesh heights see
+// no surface in a cut quad, so its widest edge bounds the hole there
+// (docs/bundle-format.md "Heights over a texel's square"). hrt check prints it.
+struct SurfaceCoverage {
+  uint64_t quads = 0;      // quads with their centre inside a UV triangle
+  uint64_t cut = 0;        // of those, not usable
+  double widest_cut = 0.0; // m: the longest edge of a cut quad
+};
+// O(atlas texels + faces). Needs model.surface (prepare_surface_map).
+SurfaceCoverage surface_coverage(const Model& model);
+
 }  // namespace hrt

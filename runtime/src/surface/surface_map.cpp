@@ -255,4 +255,53 @@ void prepare_surface_map(Model& model) {
   sm.ready = true;
 }
 
+SurfaceCoverage surface_coverage(const Model& model) {
+  SurfaceCoverage out;
+  const SurfaceMap& sm = model.surface;
+  const Atlas& at = model.atlas;
+  const int W = at.width, H = at.height;
+  if (!sm.ready || W < 2 || H < 2 || sm.quad_ok.size() != static_cast<size_t>(W) * H) return out;
+  // A quad counts once even where two triangles' boxes overlap.
+  std::vector<uint8_t> seen(static_cast<size_t>(W) * H, 0);
+  for (size_t f = 0; f < model.faces.size(); ++f) {
+    double ax[3], ay[3];
+    for (int c = 0; c < 3; ++c) {
+      ax[c] = static_cast<double>(model.uvs[f][c].x()) * W - 0.5;
+      ay[c] = (1.0 - static_cast<double>(model.uvs[f][c].y())) * H - 0.5;
+    }
+    const double e1x = ax[1] - ax[0], e1y = ay[1] - ay[0], e2x = ax[2] - ax[0], e2y = ay[2] - ay[0];
+    const double area2 = e1x * e2y - e2x * e1y;
+    if (!(std::abs(area2) > 1e-12)) continue;
+    // Quad (i, j) has its centre at (i + 0.5, j + 0.5).
+    auto clampi = [](double v, int hi) { return static_cast<int>(std::clamp(v, 0.0, static_cast<double>(hi))); };
+    const int i0 = clampi(std::floor(std::min({ax[0], ax[1], ax[2]}) - 0.5), W - 2);
+    const int i1 = clampi(std::ceil(std::max({ax[0], ax[1], ax[2]}) - 0.5), W - 2);
+    const int j0 = clampi(std::floor(std::min({ay[0], ay[1], ay[2]}) - 0.5), H - 2);
+    const int j1 = clampi(std::ceil(std::max({ay[0], ay[1], ay[2]}) - 0.5), H - 2);
+    for (int j = j0; j <= j1; ++j)
+      for (int i = i0; i <= i1; ++i) {
+        const double dx = i + 0.5 - ax[0], dy = j + 0.5 - ay[0];
+        const double b1 = (dx * e2y - e2x * dy) / area2, b2 = (e1x * dy - dx * e1y) / area2;
+        if (b1 < 0 || b2 < 0 || b1 + b2 > 1) continue;
+        const size_t q = static_cast<size_t>(j) * W + i;
+        if (seen[q]) continue;
+        seen[q] = 1;
+        ++out.quads;
+        if (sm.quad_ok[q]) continue;
+        ++out.cut;
+        const float* c[4] = {at.texel(i, j), at.texel(i + 1, j), at.texel(i + 1, j + 1), at.texel(i, j + 1)};
+        for (int k = 0; k < 4; ++k) {
+          // (A valid bundle fills every texel a lookup inside a triangle reads:
+          // docs/bundle-format.md, the coverage rule; a cut here is a jump.)
+          const float *a = c[k], *b = c[(k + 1) % 4];
+          const double d = std::sqrt(static_cast<double>(a[0] - b[0]) * (a[0] - b[0]) +
+                                     static_cast<double>(a[1] - b[1]) * (a[1] - b[1]) +
+                                     static_cast<double>(a[2] - b[2]) * (a[2] - b[2]));
+          if (std::isfinite(d)) out.widest_cut = std::max(out.widest_cut, d);
+        }
+      }
+  }
+  return out;
+}
+
 }  // namespace hrt
