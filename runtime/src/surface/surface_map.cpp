@@ -19,6 +19,16 @@ constexpr double kReadMargin = 1.0;
 // no manifest (tests that build a Model by hand).
 constexpr int kDefaultGutter = 4;
 
+// Atlas texel coordinates of face f's UV corners (spec: x = u W - 0.5,
+// y = (1 - v) H - 0.5).
+void atlas_corners(const Model& model, size_t f, double* ax, double* ay) {
+  const double W = model.atlas.width, H = model.atlas.height;
+  for (int c = 0; c < 3; ++c) {
+    ax[c] = static_cast<double>(model.uvs[f][c].x()) * W - 0.5;
+    ay[c] = (1.0 - static_cast<double>(model.uvs[f][c].y())) * H - 0.5;
+  }
+}
+
 int manifest_gutter(const Model& m) {
   const nlohmann::json& j = m.manifest;
   if (j.is_object() && j.contains("atlas") && j["atlas"].is_object() && j["atlas"].contains("gutter") &&
@@ -157,12 +167,8 @@ void prepare_surface_map(Model& model) {
   std::vector<Eigen::Vector3d> w;  // offsets of one face (reused)
   for (size_t f = 0; f < F; ++f) {
     const Tri& tri = model.faces[f];
-    // Atlas texel coordinates of the corners (spec: x = u W - 0.5, y = (1 - v) H - 0.5).
     double ax[3], ay[3];
-    for (int c = 0; c < 3; ++c) {
-      ax[c] = static_cast<double>(model.uvs[f][c].x()) * W - 0.5;
-      ay[c] = (1.0 - static_cast<double>(model.uvs[f][c].y())) * H - 0.5;
-    }
+    atlas_corners(model, f, ax, ay);
     const double e1x = ax[1] - ax[0], e1y = ay[1] - ay[0], e2x = ax[2] - ax[0], e2y = ay[2] - ay[0];
     const double area2 = e1x * e2y - e2x * e1y;
     w.clear();
@@ -265,10 +271,7 @@ SurfaceCoverage surface_coverage(const Model& model) {
   std::vector<uint8_t> seen(static_cast<size_t>(W) * H, 0);
   for (size_t f = 0; f < model.faces.size(); ++f) {
     double ax[3], ay[3];
-    for (int c = 0; c < 3; ++c) {
-      ax[c] = static_cast<double>(model.uvs[f][c].x()) * W - 0.5;
-      ay[c] = (1.0 - static_cast<double>(model.uvs[f][c].y())) * H - 0.5;
-    }
+    atlas_corners(model, f, ax, ay);
     const double e1x = ax[1] - ax[0], e1y = ay[1] - ay[0], e2x = ax[2] - ax[0], e2y = ay[2] - ay[0];
     const double area2 = e1x * e2y - e2x * e1y;
     if (!(std::abs(area2) > 1e-12)) continue;
