@@ -206,3 +206,41 @@ def test_multirate_linearized_model_beats_zero_order_hold(slide_models, tmp_path
     # fraction of a step: a step no linear prediction between 100 Hz frames follows.
     # Measured with it: 2.76.)
     assert e_zoh >= 2.5 * e_lin
+
+
+def test_lockstep_session_is_the_same_on_one_and_two_threads(root, tmp_path):
+    """The patches of a frame run on a pool of threads (`--threads`, run.threads): the
+    trace of a lockstep session is the same, column by column and digit by digit, on one
+    thread and on two, except the wall-clock timings. The textured block rests yawed on
+    the textured plate with two copies of the plate under its two halves (two patches or
+    more per frame)."""
+    import csv
+    block, plate = FS.bake_model("grating", root), FS.bake_model("plate", root)
+    q = S.quat_mul(S.quat([0, 0, 1], math.radians(17)), S.quat([1, 0, 0], math.pi))
+    c = np.array([FS.GRATING_SIDE / 2, FS.GRATING_SIDE / 2, FS.GRATING_THICK])
+    # The block's centre over the seam between two plates side by side.
+    target = np.array([FS.PLATE_SIDE, FS.PLATE_SIDE / 2, FS.PLATE_THICK - 0.1e-3])
+    pos = (target - S.rotate(q, c)).tolist()
+    rows = {}
+    for threads in (1, 2):
+        folder = tmp_path / f"t{threads}"
+        folder.mkdir()
+        tables = {
+            "run": {"duration": 0.3, "lockstep": True, "threads": threads},
+            "object": [{"name": "probe", "bundle": block.bundle, "position": pos, "orientation": q},
+                       {"name": "plate", "bundle": plate.bundle},
+                       {"name": "plate2", "bundle": plate.bundle, "position": [FS.PLATE_SIDE, 0.0, 0.0]}],
+            "device": {"trajectory": still(folder, pos, q)},
+            "loop": {"soft_start": 0.0},
+            "trace": {"path": folder / "trace.csv"},
+        }
+        S.run_scene(folder, "rest", tables)
+        with open(folder / "trace.csv", newline="") as f:
+            table = [r for r in csv.reader(f) if r and not r[0].startswith("#")]
+        keep = [i for i, name in enumerate(table[0]) if not name.endswith("_us")]
+        rows[threads] = [[r[i] for i in keep] for r in table]
+    header = rows[1][0]
+    patches = [int(r[header.index("patches")]) for r in rows[1][1:]]
+    print(f"{len(rows[1]) - 1} frames, patches {min(patches)}-{max(patches)}")
+    assert max(patches) >= 2, "the session never had two patches to share"
+    assert rows[1] == rows[2]

@@ -23,7 +23,9 @@
 // adds up to the stage's cost), and a fourth table gives the medians of its
 // split (upload, draw, resolve, reduce, read-back, total) and round trips
 // per N and patch count, on the path and for the copies.
-// One thread; the machine (and the GL renderer) is printed with the table.
+// The CPU backend runs the patches of a frame on --threads threads (all
+// hardware threads by default); the machine, the threads (and the GL
+// renderer) are printed with the table.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -353,7 +355,8 @@ void run_bench(BenchOptions o) {
   nlohmann::json js;
   const std::string machine = machine_name();
   const unsigned cores = std::thread::hardware_concurrency();
-  js["machine"] = {{"cpu", machine}, {"cores", cores}, {"threads_used", 1}, {"compiler", __VERSION__}};
+  const int threads_used = backend.gl ? 1 : hrt::resolve_threads(so.threads);
+  js["machine"] = {{"cpu", machine}, {"cores", cores}, {"threads_used", threads_used}, {"compiler", __VERSION__}};
   // Only with the GL backend: the CPU output stays as it was.
   if (backend.gl) {
     const hrt::gl::GlDepthOptions& g = backend.gl->options();
@@ -374,7 +377,8 @@ void run_bench(BenchOptions o) {
   if (!o.json) {
     std::printf("hrt bench: A = %s (%zu pieces, %zu triangles), B = %s (%zu pieces, %zu triangles)\n", A.path.c_str(),
                 A.pieces.size(), A.faces.size(), B.path.c_str(), B.pieces.size(), B.faces.size());
-    std::printf("machine    %s, %u logical cores, one thread used; %s%s\n", machine.c_str(), cores, "compiler " __VERSION__,
+    std::printf("machine    %s, %u logical cores, %d thread%s used; %s%s\n", machine.c_str(), cores, threads_used,
+                threads_used == 1 ? "" : "s", "compiler " __VERSION__,
                 backend.gl ? ("; depth backend " + backend.describe() + ", profiled").c_str() : "");
     std::printf("pose A     --pose-a %s   (B: --pose-b %s)\n", pose_args(pose_a).c_str(), pose_args(pose_b).c_str());
     std::printf("path       A moves by (%.4g, %.4g, %.4g) m over %d frames, back and forth, %d passes (first = warm-up)\n\n",

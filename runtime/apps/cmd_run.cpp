@@ -68,6 +68,7 @@ struct RunFlags {
   bool lockstep = false, realtime = false, json = false, quiet = false, sched_fifo = false;
   std::string trace, device_log;
   std::string backend;  // "" = the scene file's run.backend
+  int threads = -1;     // -1 = the scene file's run.threads
 };
 
 double median(std::vector<double> v) {
@@ -179,6 +180,7 @@ int run(const RunFlags& f) {
       throw Exit(kUsage, "--backend gl: " + cfg.file +
                              " sets [force] heights = \"mesh\", which only the CPU backend implements; see hrt run --help");
   }
+  if (f.threads >= 0) cfg.scene.threads = f.threads;
   hrt::BackendChoice backend_choice = hrt::BackendChoice::cpu;
   if (!hrt::parse_backend_choice(cfg.backend, backend_choice))  // both readers checked it already
     throw Exit(kUsage, backend_source + ": not a backend (cpu, gl, auto)");
@@ -461,7 +463,10 @@ int run(const RunFlags& f) {
                 {"bad_type", c.bad_type}, {"non_finite", c.non_finite}, {"out_of_order", c.out_of_order},
                 {"sent_wrenches", c.sent_wrenches}, {"sent_display", c.sent_display}};
   }
-  nlohmann::json jb = {{"choice", cfg.backend}, {"name", backend.name()}, {"message", backend.selection.message}};
+  nlohmann::json jb = {{"choice", cfg.backend},
+                       {"name", backend.name()},
+                       {"message", backend.selection.message},
+                       {"threads", backend.gl ? 1 : hrt::resolve_threads(cfg.scene.threads)}};
   if (backend.gl) {
     const hrt::gl::GlDepthStats& gs = backend.gl->stats();
     const hrt::gl::ContextInfo& gi = backend.selection.context->info();
@@ -561,6 +566,10 @@ void register_run(CLI::App& app) {
                   "Where the penetration depth runs (overrides run.backend): cpu, gl (exit 7 without a usable "
                   "OpenGL 4.5 context), auto (gl only on a hardware renderer that beats the cpu in a short probe)")
       ->check(CLI::IsMember({"cpu", "gl", "auto"}));
+  sub->add_option("--threads", f->threads,
+                  "Threads of the CPU backend, the contact patches of a frame in parallel (overrides run.threads; "
+                  "0: every hardware thread; the results do not depend on it)")
+      ->check(CLI::Range(0, hrt::kMaxThreads));
   sub->add_flag("--json", f->json, "Print the summary as JSON");
   sub->add_flag("--quiet", f->quiet, "Print nothing on success");
   sub->callback([f]() {

@@ -71,6 +71,7 @@ struct SceneFlags {
   std::string backend = "cpu";
   std::string gl_search = "compute";
   int occlusion_steps = hrt::gl::GlDepthOptions{}.occlusion_steps;
+  int threads = 0;  // SceneOptions::threads (0: every hardware thread)
   // Set by add_to: whether --gl-search / --occlusion-steps were given (a
   // value for a backend or search that does not use it is refused, as the
   // scene file refuses a key of another device type).
@@ -107,6 +108,11 @@ struct SceneFlags {
                   "min_wavelength");
     cmd->add_option("--max-resolution", max_resolution, "budget of --auto-resolution: largest N of a patch")
         ->check(Integer())
+        ->capture_default_str();
+    cmd->add_option("--threads", threads,
+                    "threads of the CPU backend: the contact patches of a frame are evaluated in parallel (0: every "
+                    "hardware thread; the results do not depend on it)")
+        ->check(CLI::Range(0, hrt::kMaxThreads))
         ->capture_default_str();
     cmd->add_flag("!--no-verify-hashes", verify_hashes, "skip the SHA-256 checks of the bundles' files");
     cmd->add_option("--backend", backend,
@@ -167,6 +173,7 @@ struct SceneFlags {
     o.cluster.max_patches = max_patches;
     o.cluster.auto_resolution = auto_resolution;
     o.cluster.max_resolution = max_resolution;
+    o.threads = threads;
     return o;
   }
 };

@@ -102,7 +102,17 @@ struct SceneOptions {
   // finite-difference steps (default one grid texel and the matching angle),
   // the Sec. 5.2 shortcut (default off).
   ForceOptions force;
+  // Threads of the texture force: the patches of a frame are evaluated in
+  // parallel on a fixed pool that State starts once (1: the calling thread
+  // only; 0: every hardware thread). The results do not depend on it.
+  int threads = 1;
 };
+// The most threads SceneOptions::threads may ask for (a pool and a scratch
+// buffer each, started by State).
+constexpr int kMaxThreads = 256;
+// The threads a SceneOptions::threads value means: n >= 1 as is, 0 every
+// hardware thread (std::thread::hardware_concurrency, at least 1).
+int resolve_threads(int requested);
 
 // ---------------------------------------------------------------------------
 // Scene (immutable)
@@ -111,6 +121,8 @@ struct SceneOptions {
 namespace collision {
 class World;  // FCL geometry of the scene (src/collision/collision.h)
 }
+
+class TaskPool;  // src/parallel/task_pool.h
 
 class Scene {
  public:
@@ -200,6 +212,9 @@ struct Warnings {
 struct State {
   // Preallocates everything for `scene`; poses start at identity.
   explicit State(const Scene& scene);
+  ~State();
+  State(const State&) = delete;
+  State& operator=(const State&) = delete;
 
   std::vector<Pose> poses;        // one per object, [0] = A (set these before frame())
   std::vector<Vec6> velocities;   // placeholder for a simulation (twist per object); frame() ignores it
@@ -285,6 +300,10 @@ struct State {
   DepthBackend* depth_backend = nullptr;
   std::vector<DepthJob> depth_jobs;            // capacity max_patches (frame() with a backend)
   std::vector<DepthGradient> depth_results;    // capacity max_patches
+  // SceneOptions::threads > 1: the pool and one DepthScratch per pool thread
+  // but the caller's (which uses `depth`), reserved like it.
+  std::unique_ptr<TaskPool> pool;
+  std::vector<DepthScratch> pool_depth;
   void resize_pair_scratch(size_t n);  // the per-pair scratch above, for n pairs
 };
 

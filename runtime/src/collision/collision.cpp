@@ -1,6 +1,7 @@
 // Coarse collision detection on the convex pieces (paper Sec. 6.1): geometry
 // built once per Scene, and the per-frame pair query (detect_pairs).
 #include "collision/collision.h"
+#include "parallel/task_pool.h"
 
 #include <algorithm>
 #include <cmath>
@@ -843,9 +844,18 @@ State::State(const Scene& scene) {
   target_cell.assign(static_cast<size_t>(n), 0.0);
   // The largest N any patch may use (ClusterOptions::auto_resolution).
   const ClusterOptions& copt = scene.options().cluster;
-  depth.reserve(copt.auto_resolution ? std::max(scene.options().force.resolution, copt.max_resolution)
-                                     : scene.options().force.resolution);
+  const int reserve_n = copt.auto_resolution ? std::max(scene.options().force.resolution, copt.max_resolution)
+                                             : scene.options().force.resolution;
+  depth.reserve(reserve_n);
+  const int threads = resolve_threads(scene.options().threads);
+  if (threads > 1) {
+    pool = std::make_unique<TaskPool>(threads);
+    pool_depth.resize(static_cast<size_t>(threads - 1));
+    for (DepthScratch& s : pool_depth) s.reserve(reserve_n);
+  }
 }
+
+State::~State() = default;
 
 namespace {
 

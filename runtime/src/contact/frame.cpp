@@ -120,6 +120,7 @@
 #include "collision/collision.h"
 #include "hrt/depth.h"
 #include "hrt/scene.h"
+#include "parallel/task_pool.h"
 
 namespace hrt {
 
@@ -552,6 +553,28 @@ void frame(const Scene& scene, State& st) {
     }
     st.depth_backend->evaluate(st.depth_jobs.data(), st.num_patches, scene.options().force, st.depth_results.data());
   }
+  // The CPU code on the pool: each patch's delta and gradient on its own
+  // (per-thread scratch; a patch's result does not depend on which thread or
+  // scratch computed it), then the force model and the safety checks below
+  // in patch order, as with a backend.
+  // A frame of one patch shares the patch's configurations instead.
+  const bool pooled = !st.depth_backend && st.pool && st.num_patches >= 1;
+  if (pooled && st.num_patches == 1) {
+    const ContactPatch& patch = st.patches[0];
+    const int b = patch.object_b;
+    st.depth_results[0] = compute_depth_gradient(A, pose_a, scene.model(b), st.poses[static_cast<size_t>(b)], patch,
+                                                 scene.options().force, st.depth, st.pool.get());
+  } else if (pooled) {
+    const ForceOptions& fopt = scene.options().force;
+    auto task = [&](int k, int slot) {
+      const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
+      const int b = patch.object_b;
+      DepthScratch& scratch = slot == 0 ? st.depth : st.pool_depth[static_cast<size_t>(slot - 1)];
+      st.depth_results[static_cast<size_t>(k)] =
+          compute_depth_gradient(A, pose_a, scene.model(b), st.poses[static_cast<size_t>(b)], patch, fopt, scratch);
+    };
+    st.pool->run(st.num_patches, task);
+  }
   for (int k = 0; k < st.num_patches; ++k) {
     ContactPatch& patch = st.patches[static_cast<size_t>(k)];
     const int b = patch.object_b;
@@ -559,7 +582,7 @@ void frame(const Scene& scene, State& st) {
     const Pose& pose_b = st.poses[static_cast<size_t>(b)];
     // The undersampling warning (Sec. 7.2) counts once per patch lifetime:
     // the flag lives in the patch's track (cluster_pairs keeps it across frames).
-    if (st.depth_backend)
+    if (st.depth_backend || pooled)
       apply_depth_gradient(A, B, patch, st.depth_results[static_cast<size_t>(k)], scene.options().force,
                            &st.warnings.depth, &st.tracks[static_cast<size_t>(k)].warned);
     else

@@ -9,6 +9,7 @@
 #endif
 
 #include "hrt/depth.h"
+#include "parallel/task_pool.h"
 
 namespace hrt {
 namespace {
@@ -288,7 +289,8 @@ bool plan_depth(const Model& A, const Pose& pose_a, const Model& B, const Pose& 
 }
 
 DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
-                                     const ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch) {
+                                     const ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch,
+                                     TaskPool* pool) {
   DepthGradient out;
   const int N = patch.window.resolution;
   for (double& d : out.delta_at) d = -kInf;
@@ -346,14 +348,38 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     // height map, by exactly m texels: those four are shifts of h_A(0),
     // rasterized with a border of m.
     rasterize_heights_seeded(A, T[0], ta, n, u, v, patch.window, border, true, bufs[0], scratch.seeds, plan.cull_a);
+    // Each re-solved configuration reads the seeds and writes its own buffer.
+    int todo[11];
+    int ntodo = 0;
     for (int k = 1; k < count; ++k) {
       const int c = rendered[k];
-      if (shift_m > 0 && c >= 1 && c <= 4) continue;
+      if (!(shift_m > 0 && c >= 1 && c <= 4)) todo[ntodo++] = k;
+    }
+    auto resolve = [&](int t, int) {
+      const int k = todo[t];
       resolve_heights(A, T[k], T[0], n, u, v, patch.window, true, bufs[0], border, scratch.seeds, bufs[k]);
+    };
+    if (pool) {
+      pool->run(ntodo, resolve);
+    } else {
+      for (int t = 0; t < ntodo; ++t) resolve(t, 0);
     }
   } else {
-    rasterize_heights_multi(A, T, borders, count, ta, n, u, v, patch.window, true, bufs, opt.heights,
-                            opt.heights == HeightMode::mesh ? plan.cull_a : std::numeric_limits<double>::quiet_NaN());
+    const double cull = opt.heights == HeightMode::mesh ? plan.cull_a : std::numeric_limits<double>::quiet_NaN();
+    // One pass over the triangles per group of configurations (a triangle's
+    // atlas region is read from the cache for all the group's placements but
+    // the first): one group, or one per pool thread.
+    const int groups = pool ? std::min(pool->threads(), count) : 1;
+    auto raster = [&](int g, int) {
+      const int lo = g * count / groups, hi = (g + 1) * count / groups;
+      rasterize_heights_multi(A, T + lo, borders + lo, hi - lo, ta, n, u, v, patch.window, true, bufs + lo,
+                              opt.heights, cull);
+    };
+    if (groups > 1) {
+      pool->run(groups, raster);
+    } else {
+      raster(0, 0);
+    }
   }
 
   D[0] = shifted_depth(ha0, S, border, hb, N, 0, 0);

@@ -98,7 +98,7 @@ const Range kTraceMaxBytes{1e6, 1e12, "bytes", ""};
 // suggestions use (docs/scene-format.md documents the same keys).
 const std::map<std::string, std::vector<std::string>>& known_keys() {
   static const std::map<std::string, std::vector<std::string>> k = {
-      {"run", {"duration", "lockstep", "sim_every", "max_step", "backend", "gl_search", "occlusion_steps"}},
+      {"run", {"duration", "lockstep", "sim_every", "max_step", "backend", "gl_search", "occlusion_steps", "threads"}},
       {"object", {"name", "bundle", "position", "orientation", "trajectory"}},
       {"force",
        {"stiffness", "resolution", "lin_step", "ang_step", "shortcut", "heights", "margin", "max_patches",
@@ -575,6 +575,9 @@ RunConfig load_run_config(const std::string& path) {
     if (s.has("occlusion_steps") && (c.backend == "cpu" || c.gl_search != "occlusion"))
       s.fail("occlusion_steps", "only with gl_search = \"occlusion\" (and backend = \"gl\" or \"auto\")");
     c.occlusion_steps = s.integer("occlusion_steps", c.occlusion_steps, 1, 23);
+    // The CPU backend's threads (SceneOptions::threads): every hardware
+    // thread unless the scene says otherwise; the results do not depend on it.
+    c.scene.threads = s.integer("threads", 0, 0, kMaxThreads);
   }
 
   // [[object]]: the probe first, then the objects it touches.
