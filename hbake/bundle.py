@@ -1977,9 +1977,15 @@ def validate_bundle(path: str | os.PathLike) -> list[Problem]:
 def check_bundle(path: str | os.PathLike) -> tuple[dict | None, list[Problem]]:
     """(manifest, problems): the manifest when it is readable, of version 1.x and
     schema-valid (else None), and every problem as :func:`validate_bundle` lists it."""
+    manifest, problems, _ = check_bundle_data(path)
+    return manifest, problems
+
+
+def check_bundle_data(path: str | os.PathLike) -> tuple[dict | None, list[Problem], Bundle | None]:
+    """:func:`check_bundle` and the bundle read (None unless there is no problem)."""
     checker = _Checker(path, verify_hashes=True, invariants=True)
-    checker.run()
-    return checker.manifest, checker.problems
+    bundle = checker.run()
+    return checker.manifest, checker.problems, (bundle if not checker.problems else None)
 
 
 def read_bundle(path: str | os.PathLike, *, verify: bool = True) -> Bundle:

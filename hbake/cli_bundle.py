@@ -11,7 +11,8 @@ import sys
 
 import click
 
-from .bundle import check_bundle
+from .bundle import check_bundle_data
+from .surface_coverage import surface_coverage
 from .errors import VALIDATE_EXIT
 
 __all__ = ["validate", "inspect"]
@@ -20,7 +21,7 @@ __all__ = ["validate", "inspect"]
 @click.command("validate")
 @click.argument("bundle", type=click.Path(file_okay=True, dir_okay=True, path_type=str))
 @click.option("--json", "as_json", is_flag=True, default=False,
-              help="Print {path, valid, exit_code, problems: [{class, message}]} as JSON "
+              help="Print {path, valid, exit_code, problems: [{class, message}], surface} as JSON "
                    "instead of the lines (same exit code).")
 def validate(bundle: str, as_json: bool = False) -> None:
     """Check BUNDLE against the format spec.
@@ -28,16 +29,27 @@ def validate(bundle: str, as_json: bool = False) -> None:
     Prints 'BUNDLE: OK', or one line 'BUNDLE: <class>: <message>' per problem
     (classes io, version, schema, hash, mesh, atlas, pieces). Exit code 0 when
     valid, else that of the first problem's class: io 10, version 11, schema 12,
-    hash 13, mesh 14, atlas 15, pieces 16."""
-    _, problems = check_bundle(bundle)
+    hash 13, mesh 14, atlas 15, pieces 16.
+
+    A valid bundle whose atlas has quads cut by a discontinuity inside the coarse UV
+    triangles gets a second line, 'BUNDLE: note: surface: ...': where the runtime's
+    mesh heights see no surface (docs/bundle-format.md, "Heights over a texel's
+    square"). It is not a problem (exit 0)."""
+    _, problems, data = check_bundle_data(bundle)
+    surface = surface_coverage(data) if data is not None else None
     if as_json:
         code = VALIDATE_EXIT[problems[0].cls] if problems else 0
         click.echo(json.dumps({"path": bundle, "valid": not problems, "exit_code": code,
                                "problems": [{"class": p.cls, "message": p.message}
-                                            for p in problems]}, indent=2, sort_keys=True))
+                                            for p in problems],
+                               "surface": surface}, indent=2, sort_keys=True))
         sys.exit(code)
     if not problems:
         click.echo(f"{bundle}: OK")
+        if surface and surface["cut_quads"]:
+            click.echo(f"{bundle}: note: surface: {surface['cut_quads']:,} of the {surface['quads']:,} atlas "
+                       f"quads inside the UV triangles are cut by a discontinuity (corners up to "
+                       f"{_length(surface['widest_cut'])} apart): the mesh heights see no surface there")
         sys.exit(0)
     for p in problems:
         click.echo(f"{bundle}: {p.cls}: {p.message}")

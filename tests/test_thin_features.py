@@ -279,3 +279,31 @@ def test_tips_and_fins_moved_over_the_textured_plate_are_continuous(models, path
     tip, heading, start = path
     ds, step, cell = continuity_path(models, tip, heading, start, N, 300)
     check_continuity(ds, step, cell, f"tip {tip}, N = {N}")
+
+
+def test_validate_and_check_count_the_same_cut_quads(models):
+    """Where the mesh heights' guarantee stops (docs/bundle-format.md): `hbake validate`
+    (numpy, from the spec) and `hrt check` (the runtime's surface map) count the same atlas
+    quads inside the UV triangles, the same cut ones and the same widest cut, on the
+    thin-featured bakes (both have cuts) and a plain one; the text output notes them."""
+    import json
+    import subprocess
+    import sys
+    seen_cut = 0
+    for name in ("pins", "armadillo", "box"):
+        bundle = str(models[name].bundle)
+        v = subprocess.run([sys.executable, "-m", "hbake.cli", "validate", bundle, "--json"],
+                           capture_output=True, text=True, timeout=600)
+        assert v.returncode == 0, v.stderr
+        c = subprocess.run([HRT, "check", bundle, "--json"], capture_output=True, text=True, timeout=600)
+        assert c.returncode == 0, c.stderr
+        mine, theirs = json.loads(v.stdout)["surface"], json.loads(c.stdout)["surface"]
+        print(f"{name}: {mine}")
+        assert mine == theirs
+        assert mine["quads"] > 0
+        seen_cut += mine["cut_quads"] > 0
+        text = subprocess.run([sys.executable, "-m", "hbake.cli", "validate", bundle],
+                              capture_output=True, text=True, timeout=600).stdout.splitlines()
+        assert text[0] == f"{bundle}: OK"
+        assert (len(text) == 2 and text[1].startswith(f"{bundle}: note: surface: ")) == (mine["cut_quads"] > 0)
+    assert seen_cut >= 2, "the thin-featured bakes were expected to have cut quads"
