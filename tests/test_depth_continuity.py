@@ -39,12 +39,18 @@ CONT_ABS = 1e-7
 _A = math.radians(FS.GRATING_ANGLE)
 ACROSS = (math.cos(_A), math.sin(_A), 0.0)
 ALONG = (-math.sin(_A), math.cos(_A), 0.0)
+#: `make test` follows one path (the curved coarse mesh of the sphere); the three others
+#: (30-50 s each) are behind the slow marker.
+_SLOW = pytest.mark.slow
 PATHS = (
-    ("gratings_offset0.25L across the ridges", "gratings", 2, ACROSS, 120),
-    ("gratings_offset0.10L at 60 deg to the ridges", "gratings", 1,
-     (math.cos(_A + math.radians(60)), math.sin(_A + math.radians(60)), 0.0), 120),
-    ("sphere_on_plate_0 along x", "sphere", 0, (1.0, 0.0, 0.0), 100),
-    ("sphere_on_plate_3 along x+y", "sphere", 3, (1.0, 1.0, 0.0), 100),
+    pytest.param("gratings_offset0.25L across the ridges", "gratings", 2, ACROSS, 120, marks=_SLOW,
+                 id="gratings_offset0.25L across the ridges"),
+    pytest.param("gratings_offset0.10L at 60 deg to the ridges", "gratings", 1,
+                 (math.cos(_A + math.radians(60)), math.sin(_A + math.radians(60)), 0.0), 120, marks=_SLOW,
+                 id="gratings_offset0.10L at 60 deg to the ridges"),
+    pytest.param("sphere_on_plate_0 along x", "sphere", 0, (1.0, 0.0, 0.0), 100, id="sphere_on_plate_0 along x"),
+    pytest.param("sphere_on_plate_3 along x+y", "sphere", 3, (1.0, 1.0, 0.0), 100, marks=_SLOW,
+                 id="sphere_on_plate_3 along x+y"),
 )
 #: A change of n by more than this between two steps is an event (a jump: the pieces'
 #: closest features switch); below it, n drifts with the pose (it comes from the
@@ -186,7 +192,7 @@ def test_path_query_is_a_motion_of_a(hrt, models):
         assert got["tris_a"] == ref["tris_a"] and got["tris_b"] == ref["tris_b"]
 
 
-@pytest.mark.parametrize("name,group,index,direction,steps", PATHS, ids=[p[0] for p in PATHS])
+@pytest.mark.parametrize("name,group,index,direction,steps", PATHS)
 def test_delta_continuous_along_slow_path(name, group, index, direction, steps, hrt, models):
     """|delta_k - delta_{k-1}| <= s (|step| + l_k) + s H theta_k + CONT_ABS at every
     step that is no event; l_k = theta_k = 0 (the issue's s |step| + 1e-7 m) wherever n

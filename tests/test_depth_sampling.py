@@ -37,7 +37,9 @@ def _runs(hrt, models, group):
 SAMPLING_MODEL = "fandisk"
 
 
-@pytest.mark.parametrize("group", ["gratings", "sphere", "models"])
+# The shared models' group (about 50 s) is behind the slow marker; the gratings and the
+# sphere run in `make test`.
+@pytest.mark.parametrize("group", ["gratings", "sphere", pytest.param("models", marks=pytest.mark.slow)])
 def test_depth_against_continuous_truth(group, hrt, models):
     """Sampling (issue 8): against the truth sampled every 0.1 atlas texel over the window
     (fullsurface.continuous_truth: the maximum of h_A - h_B over the window, not only at

@@ -143,6 +143,7 @@ def _point_triangle_distance_2d(q, tri):
     return np.where(inside, 0.0, d)
 
 
+@pytest.mark.slow  # re-runs the preserve route in process (about 45 s)
 def test_torus_coarse_uvs_inside_their_charts(bakes, tmp_path):
     """Every point of a coarse UV triangle is nearer its own chart than any other chart.
 

@@ -1,7 +1,8 @@
-// The texture force of a frame's patches on a pool of threads
-// (SceneOptions::threads, src/parallel/task_pool.h): every task runs once,
+// The narrow phase of a frame's piece pairs and the texture force of its
+// patches on a pool of threads (SceneOptions::threads,
+// src/parallel/task_pool.h): every task runs once,
 // the pool allocates nothing per run, a task's exception reaches the caller,
-// and a frame gives bit for bit the same patches, forces and warnings on 1,
+// and a frame gives bit for bit the same pairs, patches, forces and warnings on 1,
 // 2 or 3 threads as the serial code (which thread or scratch buffer
 // evaluates a patch must not matter).
 #include <gtest/gtest.h>
@@ -100,6 +101,14 @@ TEST(ParallelFrame, ThreadsGiveTheSerialResultBitForBit) {
         ref.poses[0] = st.poses[0] = p;
         hrt::frame(scene1, ref);
         hrt::frame(scene2, st);
+        ASSERT_EQ(ref.num_pairs, st.num_pairs);
+        for (int k = 0; k < st.num_pairs; ++k) {
+          const hrt::PiecePair& x = ref.pairs[static_cast<size_t>(k)];
+          const hrt::PiecePair& y = st.pairs[static_cast<size_t>(k)];
+          EXPECT_TRUE(x.object_b == y.object_b && x.piece_a == y.piece_a && x.piece_b == y.piece_b &&
+                      same_bits(x.distance, y.distance) && same_bits(x.n, y.n) && same_bits(x.p_a, y.p_a))
+              << "pair " << k;
+        }
         ASSERT_EQ(ref.num_patches, st.num_patches);
         most_patches = std::max(most_patches, st.num_patches);
         single_patch_frames += st.num_patches == 1;

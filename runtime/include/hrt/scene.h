@@ -304,6 +304,17 @@ struct State {
   // but the caller's (which uses `depth`), reserved like it.
   std::unique_ptr<TaskPool> pool;
   std::vector<DepthScratch> pool_depth;
+  // With the pool, detect_pairs' narrow phase: the piece pairs the box tests
+  // passed, in the serial loop's order, and their results.
+  struct NarrowJob {
+    int b = 0, piece_a = 0, piece_b = 0;
+    double tolerance = 0, gjk_tolerance = 0;
+    bool ok = false, fallback = false;
+    double d = 0;
+    Vec3 p_a = Vec3::Zero(), p_b = Vec3::Zero(), n = Vec3::UnitZ();
+  };
+  std::vector<NarrowJob> narrow_jobs;
+  std::vector<Eigen::Isometry3d> narrow_b_from_a;  // per object, this frame
   void resize_pair_scratch(size_t n);  // the per-pair scratch above, for n pairs
 };
 

@@ -848,7 +848,9 @@ State::State(const Scene& scene) {
                                              : scene.options().force.resolution;
   depth.reserve(reserve_n);
   const int threads = resolve_threads(scene.options().threads);
+  narrow_b_from_a.assign(static_cast<size_t>(n), Eigen::Isometry3d::Identity());
   if (threads > 1) {
+    narrow_jobs.resize(pairs.size());
     pool = std::make_unique<TaskPool>(threads);
     pool_depth.resize(static_cast<size_t>(threads - 1));
     for (DepthScratch& s : pool_depth) s.reserve(reserve_n);
@@ -885,12 +887,48 @@ void detect_pairs(const Scene& scene, State& state) {
   const Eigen::Isometry3d world_from_a = state.poses[0].iso();
   int* cand = state.candidates.data();
   const int na = static_cast<int>(ga.piece_bounds.size());
+  // With a pool, the narrow phase (GJK and the separating-axis depth, most of
+  // the stage) runs on it: the pairs the box tests pass are listed in order,
+  // evaluated in parallel, and kept in the list's order, so the pairs are
+  // those of the serial loop, in its order.
+  const bool pooled = state.pool != nullptr;
+  int num_jobs = 0;
+
+  // A pair the narrow phase evaluated: kept when within the tolerance.
+  auto keep = [&](int b, int pa, int pb, double tol, bool ok, double d, const Vec3& p_a, const Vec3& p_b,
+                  const Vec3& n, bool fallback) {
+    if (!ok) {
+      ++state.warnings.fcl_failures;
+      return;
+    }
+    if (d > tol) return;
+    if (state.num_pairs == static_cast<int>(state.pairs.size())) {
+      // Grow (an allocation, counted): the capacity was too small.
+      const size_t cap = state.pairs.size() * 2;
+      state.pairs.resize(cap);
+      state.resize_pair_scratch(cap);
+      ++state.warnings.pairs_grown;
+    }
+    const Eigen::Isometry3d world_from_b = state.poses[static_cast<size_t>(b)].iso();
+    PiecePair& pp = state.pairs[static_cast<size_t>(state.num_pairs++)];
+    pp.object_b = b;
+    pp.piece_a = pa;
+    pp.piece_b = pb;
+    pp.distance = d;
+    pp.tolerance = tol;
+    pp.p_a = world_from_b * p_a;
+    pp.p_b = world_from_b * p_b;
+    pp.n = world_from_b.linear() * n;
+    pp.fallback_normal = fallback;
+    if (fallback) ++state.warnings.fallback_normals;
+  };
 
   for (int b = 1; b < scene.size(); ++b) {
     const ModelGeometry& gb = world.geometry(b);
     const double tol = scene.tolerance(b);
     const Eigen::Isometry3d world_from_b = state.poses[static_cast<size_t>(b)].iso();
     const Eigen::Isometry3d b_from_a = world_from_b.inverse(Eigen::Isometry) * world_from_a;
+    state.narrow_b_from_a[static_cast<size_t>(b)] = b_from_a;
     // GJK stops when it improves by less than this (FCL's default 1e-6 is
     // absolute, too coarse for millimetre parts).
     const double gjk_tol = 1e-6 * std::max(ga.scale, gb.scale);
@@ -937,34 +975,40 @@ void detect_pairs(const Scene& scene, State& state) {
           bhi = bhi.cwiseMax(y);
         }
         if ((blo.array() > a_hi.array()).any() || (bhi.array() < a_lo.array()).any()) continue;
+        if (pooled) {
+          if (num_jobs == static_cast<int>(state.narrow_jobs.size())) {
+            // Grow (an allocation, counted with the pairs' growth).
+            state.narrow_jobs.resize(2 * state.narrow_jobs.size());
+            ++state.warnings.pairs_grown;
+          }
+          State::NarrowJob& job = state.narrow_jobs[static_cast<size_t>(num_jobs++)];
+          job.b = b;
+          job.piece_a = pa;
+          job.piece_b = pb;
+          job.tolerance = tol;
+          job.gjk_tolerance = gjk_tol;
+          continue;
+        }
         double d = 0;
         Vec3 p_a, p_b, n;
         bool fallback = false;
-        if (!collision::piece_distance(ga, pa, b_from_a, gb, pb, gjk_tol, d, p_a, p_b, n, fallback)) {
-          ++state.warnings.fcl_failures;
-          continue;
-        }
-        if (d > tol) continue;
-        if (state.num_pairs == static_cast<int>(state.pairs.size())) {
-          // Grow (an allocation, counted): the capacity was too small.
-          const size_t cap = state.pairs.size() * 2;
-          state.pairs.resize(cap);
-          state.resize_pair_scratch(cap);
-          ++state.warnings.pairs_grown;
-        }
-        PiecePair& pp = state.pairs[static_cast<size_t>(state.num_pairs++)];
-        pp.object_b = b;
-        pp.piece_a = pa;
-        pp.piece_b = pb;
-        pp.distance = d;
-        pp.tolerance = tol;
-        pp.p_a = world_from_b * p_a;
-        pp.p_b = world_from_b * p_b;
-        pp.n = world_from_b.linear() * n;
-        pp.fallback_normal = fallback;
-        if (fallback) ++state.warnings.fallback_normals;
+        const bool ok = collision::piece_distance(ga, pa, b_from_a, gb, pb, gjk_tol, d, p_a, p_b, n, fallback);
+        keep(b, pa, pb, tol, ok, d, p_a, p_b, n, fallback);
       }
     }
+  }
+  if (!pooled || num_jobs == 0) return;
+  auto narrow = [&](int k, int) {
+    State::NarrowJob& job = state.narrow_jobs[static_cast<size_t>(k)];
+    job.fallback = false;
+    job.ok = collision::piece_distance(ga, job.piece_a, state.narrow_b_from_a[static_cast<size_t>(job.b)],
+                                       world.geometry(job.b), job.piece_b, job.gjk_tolerance, job.d, job.p_a,
+                                       job.p_b, job.n, job.fallback);
+  };
+  state.pool->run(num_jobs, narrow);
+  for (int k = 0; k < num_jobs; ++k) {
+    const State::NarrowJob& job = state.narrow_jobs[static_cast<size_t>(k)];
+    keep(job.b, job.piece_a, job.piece_b, job.tolerance, job.ok, job.d, job.p_a, job.p_b, job.n, job.fallback);
   }
 }
 
