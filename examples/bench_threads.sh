@@ -44,7 +44,7 @@ print(f"machine: {m['cpu']}, {m['cores']} logical cores, compiler {m['compiler']
       f"{len(runs[counts[0]])} rounds, thread counts alternated; medians over the rounds")
 print(f"{'K':>3} {'N':>4} {'patches':>8} " + " ".join(f"{f'force us ({t} thr)':>18} {'x':>5}" for t in counts))
 for ci, c in enumerate(runs[counts[0]][0]["copies"]):
-    for n in c["results"]:
+    for n in sorted(c["results"], key=int):
         base = None
         line = f"{c['copies']:>3} {n:>4} {c['results'][n]['patches']['median']:>8.0f} "
         for t in counts:

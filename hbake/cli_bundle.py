@@ -11,7 +11,7 @@ import sys
 
 import click
 
-from .bundle import check_bundle_data
+from .bundle import check_bundle, check_bundle_data
 from .surface_coverage import surface_coverage
 from .errors import VALIDATE_EXIT
 

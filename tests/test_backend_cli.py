@@ -308,7 +308,9 @@ def test_run_backend_auto_on_a_software_renderer_picks_the_cpu(hrt, tmp_path):
         assert_probed(line, json.loads(res.stdout)["backend"]["name"])
         return
     assert "auto -> cpu" in line and "software renderer" in line, line
-    assert json.loads(res.stdout)["backend"] == {"choice": "auto", "name": "cpu", "message": line[len("hrt: "):]}
+    import os
+    assert json.loads(res.stdout)["backend"] == {"choice": "auto", "name": "cpu", "message": line[len("hrt: "):],
+                                                 "threads": os.cpu_count()}
 
 
 def test_run_backend_gl_without_a_context_exits_7(hrt, tmp_path):

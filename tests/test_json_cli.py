@@ -53,7 +53,8 @@ def test_validate_json():
     proc = run(["validate", GOLDEN / "pebble.hbundle", "--json"])
     assert proc.returncode == 0
     assert json.loads(proc.stdout) == {"path": str(GOLDEN / "pebble.hbundle"), "valid": True,
-                                       "exit_code": 0, "problems": []}
+                                       "exit_code": 0, "problems": [],
+                                       "surface": {"quads": 241, "cut_quads": 0, "widest_cut": 0.0}}
     index = json.loads((GOLDEN / "corrupt" / "index.json").read_text())
     for case in index["variants"][:6]:
         bundle = GOLDEN / "corrupt" / case["bundle"]
@@ -61,6 +62,7 @@ def test_validate_json():
         out = json.loads(proc.stdout)
         assert proc.returncode == case["exit_code"] == out["exit_code"], case
         assert out["valid"] is False and out["problems"][0]["class"] == case["class"]
+        assert out["surface"] is None
         # The same problems as the text output, line for line.
         text = run(["validate", bundle]).stdout.splitlines()
         assert text == [f"{bundle}: {p['class']}: {p['message']}" for p in out["problems"]]

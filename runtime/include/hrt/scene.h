@@ -304,6 +304,8 @@ struct State {
   // but the caller's (which uses `depth`), reserved like it.
   std::unique_ptr<TaskPool> pool;
   std::vector<DepthScratch> pool_depth;
+  std::vector<int> pool_order;      // capacity max_patches: the patches, costliest first
+  std::vector<double> pool_cost;    // capacity max_patches: their cost estimates
   // With the pool, detect_pairs' narrow phase: the piece pairs the box tests
   // passed, in the serial loop's order, and their results.
   struct NarrowJob {

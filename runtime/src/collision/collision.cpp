@@ -851,6 +851,8 @@ State::State(const Scene& scene) {
   narrow_b_from_a.assign(static_cast<size_t>(n), Eigen::Isometry3d::Identity());
   if (threads > 1) {
     narrow_jobs.resize(pairs.size());
+    pool_order.assign(static_cast<size_t>(maxp), 0);
+    pool_cost.assign(static_cast<size_t>(maxp), 0.0);
     pool = std::make_unique<TaskPool>(threads);
     pool_depth.resize(static_cast<size_t>(threads - 1));
     for (DepthScratch& s : pool_depth) s.reserve(reserve_n);

@@ -136,6 +136,10 @@ constexpr double kJudgeCos = 0.5;
 // A patch whose delta exceeds this many times the bound of its own pairs is
 // refused (apply_patch_safety).
 constexpr double kRefuseFactor = 2.0;
+// The pool's cost estimate of a patch: its grid's texels plus this many per
+// face whose heights it rasterizes (a face covers some tens of texels of
+// the scenes measured; only the order of the estimates matters).
+constexpr double kTexelsPerFace = 20.0;
 
 // Extents of a piece along a world direction: [lo, hi] of dir . x.
 struct Extent {
@@ -557,16 +561,34 @@ void frame(const Scene& scene, State& st) {
   // (per-thread scratch; a patch's result does not depend on which thread or
   // scratch computed it), then the force model and the safety checks below
   // in patch order, as with a backend.
-  // A frame of one patch shares the patch's configurations instead.
+  // A frame of one patch shares the patch's configurations in the mesh and
+  // coarse modes, which rasterize each (milliseconds); the surface mode
+  // re-solves them from configuration 0's seeds in tens of microseconds each,
+  // too little to share (measured: no gain). With more patches, whole patches
+  // go to the threads, the costliest first (estimated by the faces whose
+  // heights they rasterize and the grid's texels) so that none is left to
+  // the end.
   const bool pooled = !st.depth_backend && st.pool && st.num_patches >= 1;
+  const ForceOptions& fopt = scene.options().force;
   if (pooled && st.num_patches == 1) {
     const ContactPatch& patch = st.patches[0];
     const int b = patch.object_b;
     st.depth_results[0] = compute_depth_gradient(A, pose_a, scene.model(b), st.poses[static_cast<size_t>(b)], patch,
-                                                 scene.options().force, st.depth, st.pool.get());
+                                                 fopt, st.depth,
+                                                 fopt.heights == HeightMode::surface ? nullptr : st.pool.get());
   } else if (pooled) {
-    const ForceOptions& fopt = scene.options().force;
-    auto task = [&](int k, int slot) {
+    int* order = st.pool_order.data();
+    double* cost = st.pool_cost.data();
+    for (int k = 0; k < st.num_patches; ++k) {
+      const ContactPatch& p = st.patches[static_cast<size_t>(k)];
+      const double texels = static_cast<double>(p.window.resolution) * p.window.resolution;
+      order[k] = k;
+      cost[k] = static_cast<double>(p.tris_a.size() + p.tris_b.size() + p.reach_a.size() + p.reach_b.size()) *
+                    kTexelsPerFace + texels;
+    }
+    std::sort(order, order + st.num_patches, [&](int x, int y) { return cost[x] > cost[y] || (cost[x] == cost[y] && x < y); });
+    auto task = [&](int t, int slot) {
+      const int k = order[t];
       const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
       const int b = patch.object_b;
       DepthScratch& scratch = slot == 0 ? st.depth : st.pool_depth[static_cast<size_t>(slot - 1)];

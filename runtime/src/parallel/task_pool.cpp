@@ -1,10 +1,27 @@
 #include "parallel/task_pool.h"
 
 #include <algorithm>
+#include <chrono>
+
+#if defined(__x86_64__) || defined(__i386__)
+#include <immintrin.h>
+#define HRT_PAUSE() _mm_pause()
+#else
+#define HRT_PAUSE() ((void)0)
+#endif
 
 #include "hrt/scene.h"
 
 namespace hrt {
+
+namespace {
+// How long a worker keeps polling for the next run before it sleeps on the
+// condition variable. A frame hands out work every millisecond or so, and a
+// wake-up through the kernel costs tens of microseconds on a loaded or
+// virtualized machine (more than a whole task of a small patch), so workers
+// poll for a while after each run; a pool left idle sleeps.
+constexpr auto kSpin = std::chrono::microseconds(200);
+}  // namespace
 
 TaskPool::TaskPool(int threads) {
   const int workers = std::max(1, threads) - 1;
@@ -15,7 +32,7 @@ TaskPool::TaskPool(int threads) {
 TaskPool::~TaskPool() {
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    stop_ = true;
+    stop_.store(true);
   }
   start_cv_.notify_all();
   for (std::thread& t : workers_) t.join();
@@ -43,17 +60,21 @@ void TaskPool::work(int slot) {
 void TaskPool::worker_main(int slot) {
   uint64_t seen = 0;
   for (;;) {
-    {
-      std::unique_lock<std::mutex> lock(mutex_);
-      start_cv_.wait(lock, [&] { return stop_ || generation_ != seen; });
-      if (stop_) return;
-      seen = generation_;
+    // Poll, then sleep.
+    const auto until = std::chrono::steady_clock::now() + kSpin;
+    int polls = 0;
+    while (generation_.load(std::memory_order_acquire) == seen && !stop_.load(std::memory_order_acquire)) {
+      HRT_PAUSE();
+      if (++polls % 64 == 0 && std::chrono::steady_clock::now() > until) {
+        std::unique_lock<std::mutex> lock(mutex_);
+        start_cv_.wait(lock, [&] { return stop_.load() || generation_.load() != seen; });
+        break;
+      }
     }
+    if (stop_.load(std::memory_order_acquire)) return;
+    seen = generation_.load(std::memory_order_acquire);
     work(slot);
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      if (--active_ == 0) done_cv_.notify_one();
-    }
+    active_.fetch_sub(1, std::memory_order_acq_rel);
   }
 }
 
@@ -63,22 +84,29 @@ void TaskPool::run_erased(int count, Call call, void* ctx) {
     for (int k = 0; k < count; ++k) call(ctx, k, 0);
     return;
   }
+  call_ = call;
+  ctx_ = ctx;
+  count_ = count;
+  error_ = nullptr;
+  next_.store(0, std::memory_order_relaxed);
+  active_.store(static_cast<int>(workers_.size()), std::memory_order_relaxed);
   {
+    // Under the mutex: a worker about to sleep checks the generation under
+    // it, so the notification cannot fall between its check and its wait.
     std::lock_guard<std::mutex> lock(mutex_);
-    call_ = call;
-    ctx_ = ctx;
-    count_ = count;
-    next_.store(0, std::memory_order_relaxed);
-    error_ = nullptr;
-    active_ = static_cast<int>(workers_.size());
-    ++generation_;
+    generation_.fetch_add(1, std::memory_order_acq_rel);
   }
   start_cv_.notify_all();
   work(0);
+  // The workers are inside this run (or about to leave it): wait for them.
+  int polls = 0;
+  while (active_.load(std::memory_order_acquire) != 0) {
+    HRT_PAUSE();
+    if (++polls % 256 == 0) std::this_thread::yield();
+  }
   std::exception_ptr error;
   {
-    std::unique_lock<std::mutex> lock(mutex_);
-    done_cv_.wait(lock, [&] { return active_ == 0; });
+    std::lock_guard<std::mutex> lock(mutex_);
     error = error_;
     error_ = nullptr;
   }

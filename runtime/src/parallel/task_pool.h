@@ -5,7 +5,8 @@
 // threads for the whole session (a real-time loop wants no thread creation,
 // no work-stealing deques growing, no allocator in the frame). The workers
 // are started once; run() wakes them, the calling thread works too, and
-// run() returns when every task is done.
+// run() returns when every task is done. Workers poll for a short while
+// after a run before they sleep (task_pool.cpp, kSpin).
 #pragma once
 
 #include <atomic>
@@ -50,12 +51,12 @@ class TaskPool {
   void worker_main(int slot);
 
   std::vector<std::thread> workers_;
-  std::mutex mutex_;
-  std::condition_variable start_cv_, done_cv_;
-  uint64_t generation_ = 0;  // incremented by each run() with workers
-  int active_ = 0;           // workers still inside the current generation
-  bool stop_ = false;
-  // The current job (written under mutex_ before the generation starts).
+  std::mutex mutex_;                  // the sleepers' condition variable, the first error
+  std::condition_variable start_cv_;
+  std::atomic<uint64_t> generation_{0};  // incremented by each run() with workers
+  std::atomic<int> active_{0};           // workers still inside the current run
+  std::atomic<bool> stop_{false};
+  // The current job (written before the generation is published).
   Call call_ = nullptr;
   void* ctx_ = nullptr;
   int count_ = 0;
