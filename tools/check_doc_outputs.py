@@ -4,8 +4,10 @@
 A fenced block that quotes a command's output (a ``$ COMMAND`` line followed by output
 lines) must be declared by an HTML comment on the line just above its fence:
 
-    <!-- check-output: fast -->     re-run by the test suite (tests/test_doc_outputs.py)
-    <!-- check-output: slow -->     re-run by this script without --fast (bakes, sessions)
+    <!-- check-output: fast -->     seconds; re-run with --fast too
+    <!-- check-output: slow -->     minutes (bakes, sessions); re-run without --fast
+
+The test suite (tests/test_doc_outputs.py, in `make test`) re-runs both.
 
 A quoted output without one of these is an error: quote only what is re-run here. Blocks
 that list commands without output need no marker.
