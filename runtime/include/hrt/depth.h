@@ -247,9 +247,13 @@ void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_fro
 // and so does one whose iteration does not converge. seed_h and seeds have
 // `border` (as rasterize_heights_seeded wrote them); out is N x N.
 // seed_world_from_m is the placement the seeds were made at.
+// other (optional, N x N): the other side's heights; a texel the other side
+// does not cover (+inf for keep_max, -inf else) can give no overlap and is
+// left uncovered without being resolved (the max of Eq. 9 is unchanged).
 void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Eigen::Isometry3d& seed_world_from_m,
                      const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, bool keep_max,
-                     const double* seed_h, int border, const HeightSeeds& seeds, double* out);
+                     const double* seed_h, int border, const HeightSeeds& seeds, double* out,
+                     const double* other = nullptr);
 
 // The faces whose heights one side of a patch contributes: `tris` (tris_a or
 // tris_b), and in the mesh mode the side's reach list as well, joined in

@@ -357,7 +357,7 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     }
     auto resolve = [&](int t, int) {
       const int k = todo[t];
-      resolve_heights(A, T[k], T[0], n, u, v, patch.window, true, bufs[0], border, scratch.seeds, bufs[k]);
+      resolve_heights(A, T[k], T[0], n, u, v, patch.window, true, bufs[0], border, scratch.seeds, bufs[k], hb);
     };
     if (pool) {
       pool->run(ntodo, resolve);

@@ -906,7 +906,8 @@ void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_fro
 
 void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Eigen::Isometry3d& seed_world_from_m,
                      const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, bool keep_max,
-                     const double* seed_h, int border, const HeightSeeds& seeds, double* out) {
+                     const double* seed_h, int border, const HeightSeeds& seeds, double* out,
+                     const double* other) {
   const int N = w.resolution;
   const size_t n2 = static_cast<size_t>(std::max(N, 0)) * std::max(N, 0);
   const double none = keep_max ? -kInf : kInf;
@@ -924,6 +925,7 @@ void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, cons
       const size_t k = static_cast<size_t>(j) * N + i;
       const size_t ks = static_cast<size_t>(j + border) * (N + 2 * border) + (i + border);  // in the bordered seeds
       out[k] = none;
+      if (other && other[k] == -none) continue;  // the other side is uncovered here
       const double h0 = seed_h[ks];
       if (!(std::abs(h0) < kInf)) continue;  // not covered at configuration 0
       double a_x = seeds.a[2 * ks], a_y = seeds.a[2 * ks + 1];
