@@ -564,7 +564,8 @@ void frame(const Scene& scene, State& st) {
   // A frame of one patch shares the patch's configurations in the mesh and
   // coarse modes, which rasterize each (milliseconds); the surface mode
   // re-solves them from configuration 0's seeds in tens of microseconds each,
-  // too little to share (measured: no gain). With more patches, whole patches
+  // too little to share (measured on one patch of the golden ridged box:
+  // from 5 % faster to 20 % slower on two threads). With more patches, whole patches
   // go to the threads, the costliest first (estimated by the faces whose
   // heights they rasterize and the grid's texels) so that none is left to
   // the end.
@@ -586,7 +587,8 @@ void frame(const Scene& scene, State& st) {
       cost[k] = static_cast<double>(p.tris_a.size() + p.tris_b.size() + p.reach_a.size() + p.reach_b.size()) *
                     kTexelsPerFace + texels;
     }
-    std::sort(order, order + st.num_patches, [&](int x, int y) { return cost[x] > cost[y] || (cost[x] == cost[y] && x < y); });
+    std::sort(order, order + st.num_patches,
+              [&](int x, int y) { return cost[x] > cost[y] || (cost[x] == cost[y] && x < y); });
     auto task = [&](int t, int slot) {
       const int k = order[t];
       const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
