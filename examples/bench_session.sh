@@ -6,6 +6,8 @@
 # medians over the runs of: the device loop's period error p50 / p99 / max (us) and the
 # simulation's compute rate (frames per second of frame compute) and achieved rate.
 # Never asserted in tests. Usage: bash examples/bench_session.sh [REPEATS] [DURATION]
+# Environment: RUN_ARGS, more `hrt run` options (e.g. "--threads 1": the texture force and
+# the narrow phase on the simulation thread only; the default is every hardware thread).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 REPEATS=${1:-3}
@@ -16,7 +18,8 @@ echo "machine: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | sed 's/^ //
 for mode in normal fifo; do
   flags=""; [ "$mode" = fifo ] && flags="--sched-fifo"
   for r in $(seq "$REPEATS"); do
-    "$HRT" run examples/session/scene.toml --realtime --duration "$DURATION" $flags --json --trace out/session/bench-trace.csv 2>/dev/null || true
+    # shellcheck disable=SC2086
+    "$HRT" run examples/session/scene.toml --realtime --duration "$DURATION" $flags ${RUN_ARGS:-} --json --trace out/session/bench-trace.csv 2>/dev/null || true
   done | .venv/bin/python examples/session/summarize.py "$mode"
 done
 # The platform's own wake-up latency, for comparison (rt-tests' cyclictest, when installed:
