@@ -54,7 +54,7 @@ test-cpp:
 # The pytest suite drives the test plugins (runtime/tests/plugins) through `hrt run`.
 test-py:
 	cmake --build $(BUILD) -j $(JOBS) --target hrt_test_plugins
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -m "not slow" --durations=15
 
 # The sweeps behind the slow marker (bakes of the largest models, the
 # 20-orientation thin-feature sweep): minutes each, not in `make test`.
