@@ -377,6 +377,7 @@ def test_ridged_block_reaches_16_with_corners(ridged_box_ply, tmp_path):
     assert _hbake(["validate", str(out)]).returncode == 0
 
 
+@pytest.mark.slow  # a second preserve bake (about 26 s); the cage rebake stays in make test
 def test_preserve_rebake_is_byte_identical(bakes, tmp_path_factory):
     first = bakes["torus_pp"]
     # a fresh mesh: the first one's PLY export may carry the vertex normals trimesh
