@@ -47,7 +47,6 @@ namespace hrt {
 
 class TaskPool;  // src/parallel/task_pool.h
 
-
 // Default stiffness k of Eq. 3 (N/m): 1 N/mm, the order of what a
 // Phantom-class 6-DoF device renders stably through a virtual coupling
 // (the paper does not give its value).
@@ -292,10 +291,10 @@ struct DepthGradient {
   double region_center[2] = {0, 0};
   double region_lo[2] = {0, 0}, region_hi[2] = {0, 0};
 };
-// `pool` (optional): A's configurations of the patch are shared between its
-// threads (the re-solved ones in the surface mode, groups of rasterized ones
-// otherwise; frame() passes it for a frame of one patch). The result is the
-// same bit for bit with or without it. Not while `pool` runs other tasks.
+// `pool` (optional): in the mesh and coarse modes, A's rasterized
+// configurations are shared between its threads in groups (frame() passes it
+// for a frame of one patch); the surface mode does not use it. The result is
+// the same bit for bit with or without it. Not while `pool` runs other tasks.
 DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
                                      const ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch,
                                      TaskPool* pool = nullptr);

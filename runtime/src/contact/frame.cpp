@@ -562,21 +562,20 @@ void frame(const Scene& scene, State& st) {
   // scratch computed it), then the force model and the safety checks below
   // in patch order, as with a backend.
   // A frame of one patch shares the patch's configurations in the mesh and
-  // coarse modes, which rasterize each (milliseconds); the surface mode
-  // re-solves them from configuration 0's seeds in tens of microseconds each,
-  // too little to share (measured on one patch of the golden ridged box:
-  // from 5 % faster to 20 % slower on two threads). With more patches, whole patches
-  // go to the threads, the costliest first (estimated by the faces whose
-  // heights they rasterize and the grid's texels) so that none is left to
-  // the end.
+  // coarse modes, which rasterize each (milliseconds); compute_depth_gradient
+  // does not share the surface mode's, which re-solves them from
+  // configuration 0's seeds in tens of microseconds each (measured on one
+  // patch of the golden ridged box: from 5 % faster to 20 % slower on two
+  // threads). With more patches, whole patches go to the threads, the
+  // costliest first (estimated by the faces whose heights they rasterize and
+  // the grid's texels) so that none is left to the end.
   const bool pooled = !st.depth_backend && st.pool && st.num_patches >= 1;
   const ForceOptions& fopt = scene.options().force;
   if (pooled && st.num_patches == 1) {
     const ContactPatch& patch = st.patches[0];
     const int b = patch.object_b;
     st.depth_results[0] = compute_depth_gradient(A, pose_a, scene.model(b), st.poses[static_cast<size_t>(b)], patch,
-                                                 fopt, st.depth,
-                                                 fopt.heights == HeightMode::surface ? nullptr : st.pool.get());
+                                                 fopt, st.depth, st.pool.get());
   } else if (pooled) {
     int* order = st.pool_order.data();
     double* cost = st.pool_cost.data();

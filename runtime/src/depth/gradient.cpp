@@ -348,21 +348,12 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     // height map, by exactly m texels: those four are shifts of h_A(0),
     // rasterized with a border of m.
     rasterize_heights_seeded(A, T[0], ta, n, u, v, patch.window, border, true, bufs[0], scratch.seeds, plan.cull_a);
-    // Each re-solved configuration reads the seeds and writes its own buffer.
-    int todo[11];
-    int ntodo = 0;
+    // (Not shared with a pool: each takes tens of microseconds, less than
+    // sharing it costs; see frame().)
     for (int k = 1; k < count; ++k) {
       const int c = rendered[k];
-      if (!(shift_m > 0 && c >= 1 && c <= 4)) todo[ntodo++] = k;
-    }
-    auto resolve = [&](int t, int) {
-      const int k = todo[t];
+      if (shift_m > 0 && c >= 1 && c <= 4) continue;
       resolve_heights(A, T[k], T[0], n, u, v, patch.window, true, bufs[0], border, scratch.seeds, bufs[k], hb);
-    };
-    if (pool) {
-      pool->run(ntodo, resolve);
-    } else {
-      for (int t = 0; t < ntodo; ++t) resolve(t, 0);
     }
   } else {
     const double cull = opt.heights == HeightMode::mesh ? plan.cull_a : std::numeric_limits<double>::quiet_NaN();
