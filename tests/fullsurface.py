@@ -417,11 +417,14 @@ def surface_columns(model: Model, pose, X, n, u, v, probe: bool, ref=None) -> Co
 # ----------------------------------------------------------------------------
 
 
-def hrt_query(hrt: str, a: Model, b: Model, pose_a, pose_b, N: int, heights: str | None = None) -> dict:
+def hrt_query(hrt: str, a: Model, b: Model, pose_a, pose_b, N: int, heights: str | None = None,
+              threads: int | None = None) -> dict:
     cmd = [hrt, "query", str(a.bundle), str(b.bundle), "--pose-a", *map(repr, map(float, pose_a)),
            "--pose-b", *map(repr, map(float, pose_b)), "--resolution", str(N), "--json"]
     if heights:
         cmd += ["--heights", heights]
+    if threads is not None:
+        cmd += ["--threads", str(threads)]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, f"{' '.join(cmd)}: exit {res.returncode}: {res.stderr}"
     return json.loads(res.stdout)

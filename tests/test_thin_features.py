@@ -316,3 +316,24 @@ def test_validate_and_check_count_the_same_cut_quads(models):
         assert text[0] == f"{bundle}: OK"
         assert (len(text) == 2 and text[1].startswith(f"{bundle}: note: surface: ")) == (mine["cut_quads"] > 0)
     assert seen_cut >= 2, "the thin-featured bakes were expected to have cut quads"
+
+
+def test_thin_feature_queries_are_the_same_on_one_and_two_threads(models):
+    """The pool (`--threads`) through the real chain on thin features: pins and armadillo
+    tips pressed into the box and the textured plate, in the mesh and surface modes, give
+    the same `hrt query --json` digit for digit on one thread and on two (all but the
+    wall-clock timings and the thread count itself)."""
+    compared = multi = 0
+    for name in ("pins", "armadillo"):
+        for cs in TF.tip_first_cases(models, name, 2, 21):
+            a, b = models[cs.a], models[cs.b]
+            for heights in ("mesh", "surface"):
+                q = [FS.hrt_query(HRT, a, b, cs.pose_a, cs.pose_b, 50, heights=heights, threads=t) for t in (1, 2)]
+                for r in q:
+                    r.pop("timings_us")
+                    assert r["options"].pop("threads") in (1, 2)
+                assert q[0] == q[1], (name, heights)
+                compared += 1
+                multi += len(q[0]["contacts"]) > 1
+    print(f"{compared} queries compared, {multi} with several patches")
+    assert multi >= 1, "no query had patches to share between the threads"
