@@ -197,7 +197,7 @@ struct StageTimings {
 struct Warnings {
   uint64_t fallback_normals = 0;    // piece pairs whose closest points coincided
   uint64_t fcl_failures = 0;        // FCL threw on a pair (the pair was skipped)
-  uint64_t pairs_grown = 0;         // the pair buffer had to grow (an allocation)
+  uint64_t pairs_grown = 0;         // the pair buffer (or the pool's narrow-phase list) had to grow (an allocation)
   uint64_t patches_dropped = 0;     // patches beyond ClusterOptions::max_patches
   uint64_t empty_windows = 0;       // A's and B's triangles did not overlap in (u, v)
   uint64_t refused_patches = 0;     // n disagreed with the pieces (or a non-finite result): no force
