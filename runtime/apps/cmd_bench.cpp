@@ -182,10 +182,25 @@ std::vector<FrameRecord> sweep(const hrt::Scene& scene, const std::vector<hrt::P
   return out;
 }
 
+// The scraping path's sweeps and the copies table's, as functions of their
+// own, never inlined: examples/bench_speed.py counts the instructions of one
+// kind with callgrind --toggle-collect=*path_sweep* (or *copies_sweep*).
+[[gnu::noinline]] std::vector<FrameRecord> path_sweep(const hrt::Scene& scene, const std::vector<hrt::Pose>& base,
+                                                      const hrt::Vec3& path, int frames, int passes,
+                                                      hrt::gl::GlDepthBackend* backend, hrt::Warnings* warnings) {
+  return sweep(scene, base, path, frames, passes, backend, warnings);
+}
+[[gnu::noinline]] std::vector<FrameRecord> copies_sweep(const hrt::Scene& scene, const std::vector<hrt::Pose>& base,
+                                                        const hrt::Vec3& path, int frames, int passes,
+                                                        hrt::gl::GlDepthBackend* backend) {
+  return sweep(scene, base, path, frames, passes, backend, nullptr);
+}
+
 struct Summary {
   double collision, clustering, force, total, per_pair, per_patch;
   double pairs_med, patches_med;
   int pairs_min, pairs_max, patches_min, patches_max;
+  long long pairs_total, patches_total;  // over the recorded frames (instructions per patch from callgrind)
   size_t frames;
 };
 
@@ -207,6 +222,8 @@ Summary summarize(const std::vector<FrameRecord>& r) {
     s.pairs_max = std::max(s.pairs_max, x.pairs);
     s.patches_min = std::min(s.patches_min, x.patches);
     s.patches_max = std::max(s.patches_max, x.patches);
+    s.pairs_total += x.pairs;
+    s.patches_total += x.patches;
   }
   s.collision = median(c);
   s.clustering = median(k);
@@ -232,8 +249,9 @@ nlohmann::json summary_json(const Summary& s) {
           {"total_us", num_or_null(s.total)},
           {"collision_per_pair_us", num_or_null(s.per_pair)},
           {"force_per_patch_us", num_or_null(s.per_patch)},
-          {"pairs", {{"min", s.pairs_min}, {"median", s.pairs_med}, {"max", s.pairs_max}}},
-          {"patches", {{"min", s.patches_min}, {"median", s.patches_med}, {"max", s.patches_max}}}};
+          {"pairs", {{"min", s.pairs_min}, {"median", s.pairs_med}, {"max", s.pairs_max}, {"total", s.pairs_total}}},
+          {"patches",
+           {{"min", s.patches_min}, {"median", s.patches_med}, {"max", s.patches_max}, {"total", s.patches_total}}}};
 }
 
 // Medians of the GL split over the frames the backend evaluated.
@@ -397,7 +415,7 @@ void run_bench(BenchOptions o) {
     so.force.resolution = n;
     const auto scene = make_scene({&A, &B}, so);
     hrt::Warnings w;
-    records[n] = sweep(*scene, {pose_a, pose_b}, path, o.frames, o.passes, backend.gl, &w);
+    records[n] = path_sweep(*scene, {pose_a, pose_b}, path, o.frames, o.passes, backend.gl, &w);
     const Summary s = summarize(records[n]);
     nlohmann::json j = summary_json(s);
     j["resolution"] = n;
@@ -494,7 +512,7 @@ void run_bench(BenchOptions o) {
       so.force.resolution = n;
       const auto scene = make_scene(objects, so);
       const std::vector<FrameRecord> rec =
-          sweep(*scene, base, path / std::max(1, k), copy_frames, o.passes, backend.gl, nullptr);
+          copies_sweep(*scene, base, path / std::max(1, k), copy_frames, o.passes, backend.gl);
       const Summary s = summarize(rec);
       if (!have_first) {
         first = s;
