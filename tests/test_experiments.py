@@ -325,3 +325,26 @@ def test_plot_draws_every_figure_of_a_session_trace(sine, tmp_path):
     assert res.returncode == 4 and res.stderr.count("\n") == 1 and "contact_fz" in res.stderr
     res = _hbake("plot", tmp_path / "none.csv", "-o", out)
     assert res.returncode == 3 and "none.csv" in res.stderr
+
+
+def test_paths_py_writes_the_committed_trajectories(tmp_path):
+    """The experiments' trajectories are committed beside their scenes; paths.py must
+    write the same bytes (a changed path without a re-run would play the old one), and
+    every scene's trajectory must exist."""
+    import importlib.util
+    here = FS.REPO / "examples" / "experiments"
+    spec = importlib.util.spec_from_file_location("experiment_paths", here / "paths.py")
+    paths = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(paths)
+    paths.HERE = tmp_path
+    for fn in (paths.translation, paths.rotation, paths.scraping, paths.scraping_dense, paths.hammer):
+        fn()
+    written = sorted(p.name for p in tmp_path.glob("*.csv"))
+    assert written, "paths.py wrote nothing"
+    for name in written:
+        assert (tmp_path / name).read_bytes() == (here / name).read_bytes(), f"{name} differs from paths.py's output"
+    import tomllib
+    for scene in sorted(here.glob("*.toml")):
+        traj = tomllib.loads(scene.read_text())["device"]["trajectory"]
+        assert (here / traj).is_file(), f"{scene.name}: trajectory {traj} is missing"
+        assert traj in written, f"{scene.name}: {traj} is not written by paths.py"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerate the README's results (the figures in docs/figures and the Table 1 rows):
-# bake the six benchmark models, run the four experiments, draw their figures, copy
+# bake the six benchmark models, run the five experiments, draw their figures, copy
 # those the README shows into docs/figures. Run on a quiet machine: Fig. 9 and the
 # bake times are wall clock. Usage: bash examples/experiments/docs_figures.sh
 set -euo pipefail
@@ -9,7 +9,7 @@ OUT=out/experiments
 .venv/bin/python examples/experiments/table.py "$OUT" --markdown "$OUT/table1.md"
 bash examples/experiments/run.sh all
 mkdir -p docs/figures
-for f in translation.trace.fig7 translation.trace.scene rotation.trace.fig8 scraping.trace.fig9 \
+for f in translation.trace.fig7 translation.trace.scene rotation.trace.fig8 scraping.trace.fig9 scraping_dense.trace.fig9 \
          hammer.trace.fig9 hammer.trace.scene; do
   cp "$OUT/figures/$f.png" "docs/figures/$f.png"
 done

@@ -16,6 +16,8 @@ the probe's centre, so a handle rotation turns the probe about its centre.
 * scraping.csv (Fig. 9): the file (rasp) teeth down across the ridge of the machined CAD
   part, 0.3 mm below it, scraped 20 mm along x in 0.5 s (500 frames at 1 kHz) with a
   small sideways wobble.
+* scraping_dense.csv (Fig. 9, busier): the file drawn 20 mm along x across three copies
+  of the CAD part over their lower step, with a sideways wobble: 3 to 7 patches per frame.
 * hammer.csv: the knurled hammer, head down, pressed 0.3 mm into the wrinkled torus's
   top and slid 12 mm along the tube in 1 s.
 """
@@ -104,6 +106,21 @@ def scraping():
     write("scraping.csv", rows)
 
 
+def scraping_dense():
+    # Fig. 9's busier contact: the same file drawn across three machined parts clamped
+    # side by side (scraping_dense.toml: 52 mm apart along x, the outer two shifted by
+    # -/+0.6 mm along y), over their lower step (z = 15.2 mm, about 0.3 mm deep), with
+    # a sideways wobble that brings each part's second facet in and out of contact: 3 to
+    # 7 patches per frame.
+    rows = []
+    for k in range(51):
+        t = k * 0.01
+        x = 0.014 + 0.02 * min(t / 0.5, 1.0)
+        y = -0.0115 + 0.0009 * math.sin(2 * math.pi * t / 0.25)
+        rows.append((t, (x, y, 15.2 * MM), (0, 0, 0, 1)))
+    write("scraping_dense.csv", rows)
+
+
 def hammer():
     # The torus (R 50 mm, tube 20 mm, axis z, at the origin): its top at z = 20 mm over
     # (50, 0). The hammer (inches; centred, head at the top of the file, its head's top
@@ -119,4 +136,5 @@ if __name__ == "__main__":
     translation()
     rotation()
     scraping()
+    scraping_dense()
     hammer()

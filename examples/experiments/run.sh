@@ -3,7 +3,7 @@
 # (models.py, once), run its scene with `hrt run` (lockstep, CPU backend, scripted
 # device), and draw its figures from the trace (`hbake plot`).
 #
-#   bash examples/experiments/run.sh [translation|rotation|scraping|hammer|all] [hrt run options]
+#   bash examples/experiments/run.sh [translation|rotation|scraping|scraping_dense|hammer|all] [hrt run options]
 #
 # Bundles, traces and figures go to out/experiments (figures in out/experiments/figures).
 # HRT=path overrides the hrt binary (default .venv/bin/hrt, built by `make runtime`).
@@ -36,7 +36,8 @@ case $what in
   translation|all) FRAME=${FRAME_TRANSLATION:-1800} run_one translation block gear -- fig7 scene ;;&
   rotation|all)    FRAME=${FRAME_ROTATION:-925} run_one rotation block -- fig8 scene ;;&
   scraping|all)    FRAME=${FRAME_SCRAPING:-250} run_one scraping file cad -- fig9 scene ;;&
+  scraping_dense|all) FRAME=${FRAME_SCRAPING_DENSE:-250} run_one scraping_dense file cad -- fig9 scene ;;&
   hammer|all)      FRAME=${FRAME_HAMMER:-700} run_one hammer hammer torus -- fig9 scene ;;&
-  translation|rotation|scraping|hammer|all) ;;
-  *) echo "run.sh: unknown experiment '$what' (translation, rotation, scraping, hammer, all)" >&2; exit 2 ;;
+  translation|rotation|scraping|scraping_dense|hammer|all) ;;
+  *) echo "run.sh: unknown experiment '$what' (translation, rotation, scraping, scraping_dense, hammer, all)" >&2; exit 2 ;;
 esac
