@@ -6,6 +6,7 @@
 
 #include "hrt/model.h"
 #include "hrt/surface.h"
+#include "surface/row_span.h"
 
 namespace hrt {
 namespace {
@@ -187,8 +188,14 @@ void prepare_surface_map(Model& model) {
       if (i0 <= i1 && j0 <= j1) work += static_cast<uint64_t>(i1 - i0 + 1) * static_cast<uint64_t>(j1 - j0 + 1);
       if (work > budget) return;  // ready stays false
       const Eigen::Vector3d &P0 = model.vertices[tri[0]], &P1 = model.vertices[tri[1]], &P2 = model.vertices[tri[2]];
-      for (int j = j0; j <= j1; ++j)
-        for (int i = i0; i <= i1; ++i) {
+      // Each row visits only the texels that can lie within kQuadReadMargin
+      // of the UV triangle (the others are skipped below anyway, and on a
+      // thin or slanted triangle they are most of its box).
+      const RowSpan rows(ax, ay, kQuadReadMargin);
+      for (int j = j0; j <= j1; ++j) {
+        int ia, ib;
+        if (!rows.span(j, i0, i1, ia, ib)) continue;
+        for (int i = ia; i <= ib; ++i) {
           // Barycentrics of the texel centre (i, j) in the UV triangle.
           const double dx = i - ax[0], dy = j - ay[0];
           const double b1 = (dx * e2y - e2x * dy) / area2, b2 = (e1x * dy - dx * e1y) / area2, b0 = 1 - b1 - b2;
@@ -227,6 +234,7 @@ void prepare_surface_map(Model& model) {
           else
             quad_reach = std::max(quad_reach, d.norm());
         }
+      }
     }
     SurfaceMap::Face& out = sm.faces[f];
     out.quad_reach = static_cast<float>(quad_reach * (1 + 1e-6)) + std::numeric_limits<float>::denorm_min();
