@@ -291,10 +291,12 @@ struct DepthGradient {
   double region_center[2] = {0, 0};
   double region_lo[2] = {0, 0}, region_hi[2] = {0, 0};
 };
-// `pool` (optional): in the mesh and coarse modes, A's rasterized
-// configurations are shared between its threads in groups (frame() passes it
-// for a frame of one patch); the surface mode does not use it. The result is
-// the same bit for bit with or without it. Not while `pool` runs other tasks.
+// `pool` (optional; frame() passes it for a frame of one patch): in the
+// mesh and coarse modes, A's rasterized configurations are shared between
+// its threads in groups; in the surface mode, B's heights run beside A's
+// configuration 0, then the re-solved configurations are shared. The result
+// is the same bit for bit with or without it. Not while `pool` runs other
+// tasks.
 DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
                                      const ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch,
                                      TaskPool* pool = nullptr);

@@ -310,8 +310,16 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   const std::vector<uint32_t>& ta = height_faces(patch.tris_a, patch.reach_a, opt.heights, scratch.tris_a);
   const std::vector<uint32_t>& tb = height_faces(patch.tris_b, patch.reach_b, opt.heights, scratch.tris_b);
   const Vec3 &n = patch.n, &u = patch.u, &v = patch.v;
-  rasterize_heights(B, plan.world_from_b, tb, n, u, v, patch.window, 0, false, scratch.hb.data(), opt.heights,
-                    plan.cull_b);
+  // A frame of one patch in the surface mode shares the patch with the pool
+  // (frame() passes it only then): B's heights beside A's configuration 0,
+  // then the re-solved configurations. Each task is the serial code on its
+  // own output, so the result does not depend on the threads.
+  const bool share = seeded && pool && pool->threads() > 1;
+  auto raster_b = [&]() {
+    rasterize_heights(B, plan.world_from_b, tb, n, u, v, patch.window, 0, false, scratch.hb.data(), opt.heights,
+                      plan.cull_b);
+  };
+  if (!share) raster_b();
   const double* hb = scratch.hb.data();
   const double* ha0 = scratch.ha0.data();
   const size_t n2 = static_cast<size_t>(N) * N;
@@ -347,13 +355,27 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     // whole number m of texels along u or v moves A's surface, and so its
     // height map, by exactly m texels: those four are shifts of h_A(0),
     // rasterized with a border of m.
-    rasterize_heights_seeded(A, T[0], ta, n, u, v, patch.window, border, true, bufs[0], scratch.seeds, plan.cull_a);
-    // (Not shared with a pool: each takes tens of microseconds, less than
-    // sharing it costs; see frame().)
+    auto raster_a0 = [&]() {
+      rasterize_heights_seeded(A, T[0], ta, n, u, v, patch.window, border, true, bufs[0], scratch.seeds,
+                               plan.cull_a);
+    };
+    int todo[11];
+    int ntodo = 0;
     for (int k = 1; k < count; ++k) {
       const int c = rendered[k];
-      if (shift_m > 0 && c >= 1 && c <= 4) continue;
+      if (!(shift_m > 0 && c >= 1 && c <= 4)) todo[ntodo++] = k;
+    }
+    auto resolve = [&](int t, int) {
+      const int k = todo[t];
       resolve_heights(A, T[k], T[0], n, u, v, patch.window, true, bufs[0], border, scratch.seeds, bufs[k], hb);
+    };
+    if (share) {
+      auto rasters = [&](int task, int) { task == 0 ? raster_a0() : raster_b(); };
+      pool->run(2, rasters);
+      pool->run(ntodo, resolve);
+    } else {
+      raster_a0();
+      for (int t = 0; t < ntodo; ++t) resolve(t, 0);
     }
   } else {
     const double cull = opt.heights == HeightMode::mesh ? plan.cull_a : std::numeric_limits<double>::quiet_NaN();
