@@ -19,6 +19,7 @@ For each scene and resolution N it prints:
 - wall medians (median over the rounds of each run's per-frame median): texture force
   per patch, collision per piece pair, clustering, the frame, and the frame's split;
 - the thread scaling: the texture force per frame on one thread and on every thread;
+- with ``--hrt-old``, old/new ratios of the texture force per frame on one and every thread;
 - instructions per patch (callgrind, one thread; the stable figure on a shared machine):
   the frame's and the texture force's (inclusive cost of ``hrt::compute_depth_gradient``)
   over the sweep's patches. Valgrind runs the code path it can emulate, so report the
@@ -228,14 +229,16 @@ def main() -> None:
                 split = f"{co / to:.0%} / {cl / to:.0%} / {fo / to:.0%}" if to > 0 else "-"
                 print(f"{scene:10} {n:>4} {name:6} {pm:>7g} {fp:>11.1f} {cp:>9.2f} {cl:>8.1f} {to:>8.1f}  {split}")
     if len(bins) > 1:
-        print("\nold / new, texture force per patch, one thread (ratio of medians; > 1: new is faster)")
-        for scene in scenes:
-            line = [f"{scene:10}"]
-            for n in resolutions:
-                new = med([r["force_per_patch_us"] for r in runs.get(("new", 1, scene, n), [])])
-                old = med([r["force_per_patch_us"] for r in runs.get(("old", 1, scene, n), [])])
-                line.append(f"N={n}: {old / new:.2f}")
-            print("  ".join(line))
+        for t in threads:
+            label = "one thread" if t == 1 else f"{cores} threads"
+            print(f"\nold / new, texture force per frame, {label} (ratio of medians; > 1: new is faster)")
+            for scene in scenes:
+                line = [f"{scene:10}"]
+                for n in resolutions:
+                    new = med([r["force_us"] for r in runs.get(("new", t, scene, n), [])])
+                    old = med([r["force_us"] for r in runs.get(("old", t, scene, n), [])])
+                    line.append(f"N={n}: {old / new:.2f}")
+                print("  ".join(line))
     if len(threads) > 1:
         print(f"\nThread scaling, texture force per frame (us), binary 'new': 1 thread vs {cores} (every core)")
         for scene in scenes:

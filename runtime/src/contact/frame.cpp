@@ -588,15 +588,30 @@ void frame(const Scene& scene, State& st) {
     }
     std::sort(order, order + st.num_patches,
               [&](int x, int y) { return cost[x] > cost[y] || (cost[x] == cost[y] && x < y); });
+    // A patch that costs more than the threads' fair share of what is left
+    // would keep one thread busy while the others idle: such patches, the
+    // costliest first, are shared between the threads one at a time (as a
+    // frame of one patch is), then the rest go out whole.
+    double left = 0;
+    for (int t = 0; t < st.num_patches; ++t) left += cost[order[t]];
+    int first = 0;
+    while (first < st.num_patches && cost[order[first]] * st.pool->threads() > left) {
+      const int k = order[first++];
+      left -= cost[k];
+      const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
+      const int b = patch.object_b;
+      st.depth_results[static_cast<size_t>(k)] = compute_depth_gradient(
+          A, pose_a, scene.model(b), st.poses[static_cast<size_t>(b)], patch, fopt, st.depth, st.pool.get());
+    }
     auto task = [&](int t, int slot) {
-      const int k = order[t];
+      const int k = order[first + t];
       const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
       const int b = patch.object_b;
       DepthScratch& scratch = slot == 0 ? st.depth : st.pool_depth[static_cast<size_t>(slot - 1)];
       st.depth_results[static_cast<size_t>(k)] =
           compute_depth_gradient(A, pose_a, scene.model(b), st.poses[static_cast<size_t>(b)], patch, fopt, scratch);
     };
-    st.pool->run(st.num_patches, task);
+    if (first < st.num_patches) st.pool->run(st.num_patches - first, task);
   }
   for (int k = 0; k < st.num_patches; ++k) {
     ContactPatch& patch = st.patches[static_cast<size_t>(k)];
