@@ -566,9 +566,10 @@ void frame(const Scene& scene, State& st) {
   // B's heights beside A's configuration 0 (with seeds), then the re-solved
   // configurations (compute_depth_gradient). On the paper's translation
   // scene, one patch per frame, two threads: 1.4-1.6x per frame. With more
-  // patches, whole patches go to the threads, the costliest first (estimated
-  // by the faces whose heights they rasterize and the grid's texels) so that
-  // none is left to the end.
+  // patches, those that would keep one thread busy alone are shared that way
+  // first (below), then whole patches go to the threads, the costliest first
+  // (estimated by the faces whose heights they rasterize and the grid's
+  // texels) so that none is left to the end.
   const bool pooled = !st.depth_backend && st.pool && st.num_patches >= 1;
   const ForceOptions& fopt = scene.options().force;
   if (pooled && st.num_patches == 1) {
