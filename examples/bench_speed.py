@@ -177,6 +177,11 @@ def main() -> None:
     args = ap.parse_args()
     hrt = args.hrt or default_hrt()
     bins = [("new", hrt)] + ([("old", args.hrt_old)] if args.hrt_old else [])
+    for name, path in bins:
+        if not (shutil.which(path) or (os.path.isfile(path) and os.access(path, os.X_OK))):
+            fail(f"{path}: not an executable hrt binary (--hrt{'-old' if name == 'old' else ''})")
+    if args.rounds < 1 or args.frames < 1 or args.callgrind_frames < 0:
+        fail("--rounds and --frames must be at least 1, --callgrind-frames at least 0")
     resolutions = [int(x) for x in args.resolutions.split(",")]
     copies = [int(x) for x in args.copies.split(",") if x.strip() and int(x) != 1]
     bundles = ensure_bundles(Path(args.out), args.hbake)
