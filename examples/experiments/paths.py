@@ -17,7 +17,7 @@ the probe's centre, so a handle rotation turns the probe about its centre.
   part, 0.3 mm below it, scraped 20 mm along x in 0.5 s (500 frames at 1 kHz) with a
   small sideways wobble.
 * scraping_dense.csv (Fig. 9, busier): the file drawn 20 mm along x across three copies
-  of the CAD part over their lower step, with a sideways wobble: 3 to 7 patches per frame.
+  of the CAD part over their lower step, with a sideways wobble: 5 to 7 patches per frame (measured).
 * hammer.csv: the knurled hammer, head down, pressed 0.3 mm into the wrinkled torus's
   top and slid 12 mm along the tube in 1 s.
 """
@@ -110,7 +110,7 @@ def scraping_dense():
     # Fig. 9's busier contact: the same file drawn across three machined parts clamped
     # side by side (scraping_dense.toml: 52 mm apart along x, the outer two shifted by
     # -/+0.6 mm along y), over their lower step (z = 15.2 mm, about 0.3 mm deep), with
-    # a sideways wobble that brings each part's second facet in and out of contact: 3 to
+    # a sideways wobble that brings each part's second facet in and out of contact: 5 to
     # 7 patches per frame.
     rows = []
     for k in range(51):
