@@ -25,8 +25,8 @@ For each scene and resolution N it prints:
   over the sweep's patches. Valgrind runs the code path it can emulate, so report the
   wall times too.
 
-The binaries and thread counts alternate inside each round (this machine may be shared
-and its speed drift), so ``--hrt-old`` (for example a build of an earlier commit) gives
+The binaries and thread counts alternate inside each round (a shared machine's speed
+drifts), so ``--hrt-old`` (for example a build of an earlier commit) gives
 old/new ratios measured side by side.
 
 The bundles come from out/bench: rasp and cad_part are baked by
