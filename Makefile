@@ -9,7 +9,7 @@ JOBS  ?= $(shell nproc)
 
 APT_PACKAGES := build-essential cmake pkg-config python3-venv \
   libeigen3-dev libfcl-dev libopenexr-dev nlohmann-json3-dev libcli11-dev libtomlplusplus-dev \
-  libgtest-dev googletest libssl-dev \
+  libgtest-dev googletest libssl-dev libhwy-dev \
   libegl-mesa0 libgl1-mesa-dri libegl-dev libepoxy-dev \
   clang libclang-rt-14-dev \
   chromium chromium-driver

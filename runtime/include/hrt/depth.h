@@ -254,6 +254,17 @@ void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, cons
                      const double* seed_h, int border, const HeightSeeds& seeds, double* out,
                      const double* other = nullptr);
 
+// resolve_heights computes its fixed point for blocks of texels vectorized
+// across lanes (Google Highway, dispatched at run time to the widest vectors
+// the CPU has). The scalar loop it replaced stays as the reference: the
+// same result, bit for bit, on every target (tested).
+void resolve_heights_reference(const Model& M, const Eigen::Isometry3d& world_from_m,
+                               const Eigen::Isometry3d& seed_world_from_m, const Vec3& n, const Vec3& u,
+                               const Vec3& v, const Window& w, bool keep_max, const double* seed_h, int border,
+                               const HeightSeeds& seeds, double* out, const double* other = nullptr);
+// The vector target resolve_heights runs on this CPU ("AVX2", "AVX3", ...).
+const char* resolve_heights_target();
+
 // The faces whose heights one side of a patch contributes: `tris` (tris_a or
 // tris_b), and in the mesh mode the side's reach list as well, joined in
 // `buf` (which grows to the largest patch once).

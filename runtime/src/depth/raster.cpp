@@ -8,6 +8,7 @@
 #include <smmintrin.h>
 #endif
 
+#include "depth/resolve_simd.h"
 #include "hrt/depth.h"
 
 namespace hrt {
@@ -904,10 +905,15 @@ void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_fro
     if (f < M.faces.size()) raster_triangle(M, f, pl);
 }
 
-void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Eigen::Isometry3d& seed_world_from_m,
-                     const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, bool keep_max,
-                     const double* seed_h, int border, const HeightSeeds& seeds, double* out,
-                     const double* other) {
+namespace {
+
+// resolve_heights with the fixed point either scalar (the reference) or
+// in blocks of texels vectorized across lanes (src/depth/resolve_simd.cpp):
+// the same operations in the same order, so the same bits.
+void resolve_heights_impl(const Model& M, const Eigen::Isometry3d& world_from_m,
+                          const Eigen::Isometry3d& seed_world_from_m, const Vec3& n, const Vec3& u, const Vec3& v,
+                          const Window& w, bool keep_max, const double* seed_h, int border, const HeightSeeds& seeds,
+                          double* out, const double* other, bool simd) {
   const int N = w.resolution;
   const size_t n2 = static_cast<size_t>(std::max(N, 0)) * std::max(N, 0);
   const double none = keep_max ? -kInf : kInf;
@@ -920,6 +926,18 @@ void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, cons
   const ResolveMotion rm = resolve_motion(world_from_m, seed_world_from_m, n, u, v, w);
   const double gxi = rm.gxi, gxj = rm.gxj, gxh = rm.gxh, gyi = rm.gyi, gyj = rm.gyj, gyh = rm.gyh;
   const double gx0 = rm.gx0, gy0 = rm.gy0;
+  if (simd) {
+    const HeightSampler& s = pl.sample;
+    depth_simd::ResolveArgs a{};
+    a.rgba = s.rgba, a.w = s.w, a.h = s.h, a.stride = static_cast<int>(s.stride), a.ok = s.ok;
+    for (int c = 0; c < 4; ++c) a.n4[c] = s.n[c], a.gx4[c] = pl.gx4[c], a.gy4[c] = pl.gy4[c];
+    a.ox = pl.ox, a.oy = pl.oy, a.oh = pl.oh, a.tol2 = tol2;
+    a.gx0 = gx0, a.gxi = gxi, a.gxj = gxj, a.gxh = gxh, a.gy0 = gy0, a.gyi = gyi, a.gyj = gyj, a.gyh = gyh;
+    a.N = N, a.border = border, a.none = none;
+    a.seed_h = seed_h, a.seed_a = seeds.a.data(), a.seed_j = seeds.j.data(), a.other = other, a.out = out;
+    depth_simd::resolve_all(a);
+    return;
+  }
   for (int j = 0; j < N; ++j)
     for (int i = 0; i < N; ++i) {
       const size_t k = static_cast<size_t>(j) * N + i;
@@ -948,6 +966,26 @@ void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, cons
       }
     }
 }
+
+}  // namespace
+
+void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Eigen::Isometry3d& seed_world_from_m,
+                     const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, bool keep_max,
+                     const double* seed_h, int border, const HeightSeeds& seeds, double* out,
+                     const double* other) {
+  resolve_heights_impl(M, world_from_m, seed_world_from_m, n, u, v, w, keep_max, seed_h, border, seeds, out, other,
+                       true);
+}
+
+void resolve_heights_reference(const Model& M, const Eigen::Isometry3d& world_from_m,
+                               const Eigen::Isometry3d& seed_world_from_m, const Vec3& n, const Vec3& u,
+                               const Vec3& v, const Window& w, bool keep_max, const double* seed_h, int border,
+                               const HeightSeeds& seeds, double* out, const double* other) {
+  resolve_heights_impl(M, world_from_m, seed_world_from_m, n, u, v, w, keep_max, seed_h, border, seeds, out, other,
+                       false);
+}
+
+const char* resolve_heights_target() { return depth_simd::resolve_target(); }
 
 double directional_depth(const Model& A, const Eigen::Isometry3d& world_from_a, const Model& B,
                          const Eigen::Isometry3d& world_from_b, const ContactPatch& patch, DepthScratch& scratch,

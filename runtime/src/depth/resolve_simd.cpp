@@ -1,0 +1,170 @@
+// resolve_all (resolve_simd.h): Google Highway, one copy per x86 target,
+// chosen at run time (HWY_DYNAMIC_DISPATCH). Lanes are the texels of a row;
+// the atlas point's coordinates and the residual are double, the bilinear
+// lookup is float (the atlas is float32), exactly as HeightSampler::project
+// does it (raster.cpp): Bilerp's top = a + fx (b - a), bot = c + fx (d - c),
+// v = top + fy (bot - top), and _mm_dp_ps's dot (p0 + p1) + (p2 + 0).
+// No fused multiply-add anywhere (CMakeLists sets -ffp-contract=off here):
+// the results equal the scalar path's bit for bit (runtime/tests/
+// test_resolve_simd.cpp checks every target the CPU runs).
+#undef HWY_TARGET_INCLUDE
+#define HWY_TARGET_INCLUDE "depth/resolve_simd.cpp"
+#include <hwy/foreach_target.h>  // IWYU pragma: keep
+#include <hwy/highway.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "depth/resolve_simd.h"
+#include "hrt/depth.h"
+
+HWY_BEFORE_NAMESPACE();
+namespace hrt {
+namespace depth_simd {
+namespace HWY_NAMESPACE {
+namespace hn = hwy::HWY_NAMESPACE;
+
+// Lanes of double in the widest vector of any target (AVX-512: 8), with room.
+constexpr size_t kMaxLanes = 16;
+
+void ResolveAll(const ResolveArgs& A) {
+  const hn::ScalableTag<double> dd;
+  const hn::Rebind<float, decltype(dd)> df;
+  const hn::Rebind<int32_t, decltype(dd)> di;
+  using VD = hn::Vec<decltype(dd)>;
+  using VF = hn::Vec<decltype(df)>;
+  using VI = hn::Vec<decltype(di)>;
+  const size_t L = hn::Lanes(dd);
+  const int N = A.N, S = A.N + 2 * A.border;
+  const VD lo = hn::Set(dd, -1e6), hi = hn::Set(dd, 1e6), inf = hn::Set(dd, HUGE_VAL);
+  const VD ox = hn::Set(dd, A.ox), oy = hn::Set(dd, A.oy), oh = hn::Set(dd, A.oh), tol2 = hn::Set(dd, A.tol2);
+  const VD none = hn::Set(dd, A.none), uncovered = hn::Set(dd, -A.none);
+  const VD gx0 = hn::Set(dd, A.gx0), gxi = hn::Set(dd, A.gxi), gxj = hn::Set(dd, A.gxj), gxh = hn::Set(dd, A.gxh);
+  const VD gy0 = hn::Set(dd, A.gy0), gyi = hn::Set(dd, A.gyi), gyj = hn::Set(dd, A.gyj), gyh = hn::Set(dd, A.gyh);
+  const VI zero_i = hn::Zero(di), one_i = hn::Set(di, 1), wi = hn::Set(di, A.w);
+  const VI wmax = hn::Set(di, A.w - 1), hmax = hn::Set(di, A.h - 1), stride = hn::Set(di, A.stride);
+  const VF zero_f = hn::Zero(df);
+  const VF gx[3] = {hn::Set(df, A.gx4[0]), hn::Set(df, A.gx4[1]), hn::Set(df, A.gx4[2])};
+  const VF gy[3] = {hn::Set(df, A.gy4[0]), hn::Set(df, A.gy4[1]), hn::Set(df, A.gy4[2])};
+  const VF gn[3] = {hn::Set(df, A.n4[0]), hn::Set(df, A.n4[1]), hn::Set(df, A.n4[2])};
+  const VD iota = hn::Iota(dd, 0.0);
+  HWY_ALIGN int32_t idx[kMaxLanes];
+  HWY_ALIGN double okv[kMaxLanes];
+  // A row's last, partial vector is read from and written to these.
+  HWY_ALIGN double t_h[kMaxLanes], t_a[2 * kMaxLanes], t_o[kMaxLanes], t_out[kMaxLanes];
+  HWY_ALIGN float t_j[4 * kMaxLanes];
+  auto dot = [&](VF v0, VF v1, VF v2, const VF* w) {
+    return hn::Add(hn::Add(hn::Mul(v0, w[0]), hn::Mul(v1, w[1])), hn::Add(hn::Mul(v2, w[2]), zero_f));
+  };
+  for (int j = 0; j < N; ++j) {
+    const VD Y = hn::Set(dd, static_cast<double>(j));
+    const size_t row = static_cast<size_t>(j) * N;
+    const size_t srow = static_cast<size_t>(j + A.border) * S + A.border;
+    for (int i0 = 0; i0 < N; i0 += static_cast<int>(L)) {
+      const size_t m = std::min(L, static_cast<size_t>(N - i0));
+      const double* ph0 = A.seed_h + srow + i0;
+      const double* pa = A.seed_a + 2 * (srow + i0);
+      const float* pj = A.seed_j + 4 * (srow + i0);
+      const double* po = A.other ? A.other + row + i0 : nullptr;
+      double* pout = A.out + row + i0;
+      if (m < L) {  // the tail: copies padded with uncovered seeds
+        for (size_t l = 0; l < L; ++l) {
+          const bool in = l < m;
+          t_h[l] = in ? ph0[l] : HUGE_VAL;
+          t_a[2 * l] = in ? pa[2 * l] : 0.0, t_a[2 * l + 1] = in ? pa[2 * l + 1] : 0.0;
+          for (int c = 0; c < 4; ++c) t_j[4 * l + c] = in ? pj[4 * l + c] : 0.0f;
+          if (po) t_o[l] = in ? po[l] : 0.0;
+        }
+        ph0 = t_h, pa = t_a, pj = t_j, po = po ? t_o : nullptr, pout = t_out;
+      }
+      const VD h0 = hn::LoadU(dd, ph0);
+      // resolve_heights' skips: the other side uncovered, no seed.
+      auto active = hn::Lt(hn::Abs(h0), inf);
+      if (po) active = hn::AndNot(hn::Eq(hn::LoadU(dd, po), uncovered), active);
+      if (hn::AllFalse(dd, active)) {
+        hn::StoreU(none, dd, pout);
+      } else {
+        VD vax, vay;
+        hn::LoadInterleaved2(dd, pa, vax, vay);
+        VF f0, f1, f2, f3;
+        hn::LoadInterleaved4(df, pj, f0, f1, f2, f3);
+        const VD J0 = hn::PromoteTo(dd, f0), J1 = hn::PromoteTo(dd, f1), J2 = hn::PromoteTo(dd, f2),
+                 J3 = hn::PromoteTo(dd, f3);
+        const VD X = hn::Add(iota, hn::Set(dd, static_cast<double>(i0)));
+        {  // the first step, from the seed's own column (no lookup)
+          const VD rx = hn::Sub(X, hn::Add(hn::Add(hn::Add(gx0, hn::Mul(gxi, X)), hn::Mul(gxj, Y)), hn::Mul(gxh, h0)));
+          const VD ry = hn::Sub(Y, hn::Add(hn::Add(hn::Add(gy0, hn::Mul(gyi, X)), hn::Mul(gyj, Y)), hn::Mul(gyh, h0)));
+          vax = hn::Add(vax, hn::Add(hn::Mul(J0, rx), hn::Mul(J1, ry)));
+          vay = hn::Add(vay, hn::Add(hn::Mul(J2, rx), hn::Mul(J3, ry)));
+        }
+        VD h = none;
+        for (int it = 0; it < kMaxLateralIterations; ++it) {
+          // HeightSampler::project: the range (also NaN), the footprint, the quad.
+          active = hn::And(active, hn::And(hn::And(hn::Gt(vax, lo), hn::Lt(vax, hi)),
+                                           hn::And(hn::Gt(vay, lo), hn::Lt(vay, hi))));
+          if (hn::AllFalse(dd, active)) break;
+          const VD sx = hn::IfThenElseZero(active, vax), sy = hn::IfThenElseZero(active, vay);
+          const VD fx0 = hn::Floor(sx), fy0 = hn::Floor(sy);
+          const VF fx = hn::DemoteTo(df, hn::Sub(sx, fx0)), fy = hn::DemoteTo(df, hn::Sub(sy, fy0));
+          const VI i0v = hn::DemoteTo(di, fx0), j0v = hn::DemoteTo(di, fy0);
+          const VI ia = hn::Min(hn::Max(i0v, zero_i), wmax), ib = hn::Min(hn::Max(hn::Add(i0v, one_i), zero_i), wmax);
+          const VI ja = hn::Min(hn::Max(j0v, zero_i), hmax), jb = hn::Min(hn::Max(hn::Add(j0v, one_i), zero_i), hmax);
+          if (A.ok) {
+            // Highway has no byte gather: the quad flags are read lane by lane.
+            hn::Store(hn::Add(hn::Mul(ja, wi), ia), di, idx);
+            for (size_t l = 0; l < L; ++l) okv[l] = A.ok[idx[l]] ? 1.0 : 0.0;
+            active = hn::And(active, hn::Ne(hn::Load(dd, okv), hn::Zero(dd)));
+            if (hn::AllFalse(dd, active)) break;
+          }
+          const VI ra = hn::Mul(ja, stride), rb = hn::Mul(jb, stride);
+          const VI ca = hn::ShiftLeft<2>(ia), cb = hn::ShiftLeft<2>(ib);
+          const VI o00 = hn::Add(ra, ca), o01 = hn::Add(ra, cb), o10 = hn::Add(rb, ca), o11 = hn::Add(rb, cb);
+          VF v[3];
+          for (int c = 0; c < 3; ++c) {
+            const float* base = A.rgba + c;
+            const VF a = hn::GatherIndex(df, base, o00), b = hn::GatherIndex(df, base, o01);
+            const VF cc = hn::GatherIndex(df, base, o10), d = hn::GatherIndex(df, base, o11);
+            const VF top = hn::Add(a, hn::Mul(fx, hn::Sub(b, a)));
+            const VF bot = hn::Add(cc, hn::Mul(fx, hn::Sub(d, cc)));
+            v[c] = hn::Add(top, hn::Mul(fy, hn::Sub(bot, top)));
+          }
+          const VD px = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gx));
+          const VD py = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gy));
+          const VD pz = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gn));
+          const VD rx = hn::Sub(X, hn::Add(px, ox)), ry = hn::Sub(Y, hn::Add(py, oy));
+          const auto in = hn::And(active, hn::Le(hn::Add(hn::Mul(rx, rx), hn::Mul(ry, ry)), tol2));
+          h = hn::IfThenElse(in, hn::Add(pz, oh), h);
+          active = hn::AndNot(in, active);
+          if (hn::AllFalse(dd, active)) break;
+          vax = hn::Add(vax, hn::Add(hn::Mul(J0, rx), hn::Mul(J1, ry)));
+          vay = hn::Add(vay, hn::Add(hn::Mul(J2, rx), hn::Mul(J3, ry)));
+        }
+        hn::StoreU(h, dd, pout);
+      }
+      if (m < L)
+        for (size_t l = 0; l < m; ++l) A.out[row + i0 + l] = t_out[l];
+    }
+  }
+}
+
+const char* ResolveTarget() { return hwy::TargetName(HWY_TARGET); }
+
+}  // namespace HWY_NAMESPACE
+}  // namespace depth_simd
+}  // namespace hrt
+HWY_AFTER_NAMESPACE();
+
+#if HWY_ONCE
+namespace hrt {
+namespace depth_simd {
+
+HWY_EXPORT(ResolveAll);
+HWY_EXPORT(ResolveTarget);
+
+void resolve_all(const ResolveArgs& a) { HWY_DYNAMIC_DISPATCH(ResolveAll)(a); }
+
+const char* resolve_target() { return HWY_DYNAMIC_DISPATCH(ResolveTarget)(); }
+
+}  // namespace depth_simd
+}  // namespace hrt
+#endif
