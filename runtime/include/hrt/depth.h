@@ -264,6 +264,11 @@ void resolve_heights_reference(const Model& M, const Eigen::Isometry3d& world_fr
                                const HeightSeeds& seeds, double* out, const double* other = nullptr);
 // The vector target resolve_heights runs on this CPU ("AVX2", "AVX3", ...).
 const char* resolve_heights_target();
+// Test and benchmark entry: on the calling thread, true makes the surface
+// mode's fixed points (the rasterization's and resolve_heights') run the
+// scalar reference loops instead of the vectorized ones. The results are the
+// same bit for bit either way; only the speed differs.
+void use_reference_heights(bool on);
 
 // The faces whose heights one side of a patch contributes: `tris` (tris_a or
 // tris_b), and in the mesh mode the side's reach list as well, joined in

@@ -201,6 +201,10 @@ inline bool culled_by_height(const Model& M, uint32_t f, const Placement& pl, do
   return pl.keep_max ? hhi < pl.cull : hlo > pl.cull;
 }
 
+// The scalar reference of the surface mode's fixed points instead of the
+// vectorized loops (use_reference_heights, hrt/depth.h).
+thread_local bool t_reference_heights = false;
+
 // The surface mode for a triangle whose atlas points can lie up to L grid
 // texels beside their coarse point's column (L > the lateral tolerance).
 //
@@ -259,6 +263,35 @@ void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, co
     b[0] = 1.0 - b[1] - b[2];
   };
 
+  depth_simd::SurfaceTri tri{};
+  if (!t_reference_heights) {
+    tri.rgba = sample.rgba, tri.w = sample.w, tri.h = sample.h, tri.stride = static_cast<int>(sample.stride);
+    tri.ok = sample.ok;
+    for (int c = 0; c < 4; ++c) tri.n4[c] = sample.n[c], tri.gx4[c] = pl.gx4[c], tri.gy4[c] = pl.gy4[c];
+    tri.ox = pl.ox, tri.oy = pl.oy, tri.oh = pl.oh, tri.tol2 = tol2;
+    tri.x0 = x[0], tri.y0 = y[0], tri.x1 = x[1], tri.y1 = y[1], tri.x2 = x[2], tri.y2 = y[2];
+    tri.e1x = e1x, tri.e1y = e1y, tri.e2x = e2x, tri.e2y = e2y, tri.inv = inv;
+    tri.ax0 = ax[0], tri.ay0 = ay[0], tri.dax_dx = dax_dx, tri.dax_dy = dax_dy, tri.day_dx = day_dx,
+    tri.day_dy = day_dy;
+    for (int k = 0; k < 3; ++k) tri.scale[k] = scale[k];
+    tri.margin = margin, tri.hlo = hlo, tri.hhi = hhi, tri.keep_max = pl.keep_max;
+  }
+  // The vector path's queue of texels (any rows), run kSpan at a time.
+  size_t k_q[depth_simd::kSpan];
+  double x_q[depth_simd::kSpan], y_q[depth_simd::kSpan], h_q[depth_simd::kSpan], ax_q[depth_simd::kSpan],
+      ay_q[depth_simd::kSpan];
+  uint8_t w_q[depth_simd::kSpan];
+  int n_q = 0;
+  auto flush = [&]() {
+    for (int t = n_q; t < depth_simd::kSpan && (t & 7); ++t) x_q[t] = y_q[t] = h_q[t] = 0.0;  // padding lanes
+    depth_simd::surface_texels(tri, n_q, x_q, y_q, h_q, ax_q, ay_q, w_q);
+    for (int t = 0; t < n_q; ++t) {
+      if (!w_q[t]) continue;
+      pl.out[k_q[t]] = h_q[t];
+      if (pl.seed_a) write_seed(pl, k_q[t], ax_q[t], ay_q[t], dax_dx, dax_dy, day_dx, day_dy);
+    }
+    n_q = 0;
+  };
   // b_k(x, y) is affine: b_k = alpha_k(y) + beta_k x along a row.
   const double beta[3] = {-(e2y - e1y) * inv, e2y * inv, -e1y * inv};
   for (int j = j0; j <= j1; ++j) {
@@ -277,6 +310,14 @@ void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, co
     if (!(lo <= hi)) continue;
     const int ia = static_cast<int>(std::ceil(lo - 1e-9)), ib = static_cast<int>(std::floor(hi + 1e-9));
     double* row = pl.out + static_cast<size_t>(j) * S;
+    if (!t_reference_heights) {  // queued for the vectorized loop (src/depth/resolve_simd.cpp)
+      for (int i = std::max(ia, i0); i <= std::min(ib, i1); ++i) {
+        if (pl.keep_max ? row[i] >= hhi : row[i] <= hlo) continue;
+        k_q[n_q] = static_cast<size_t>(j) * S + i, x_q[n_q] = i, y_q[n_q] = j, h_q[n_q] = row[i];
+        if (++n_q == depth_simd::kSpan) flush();
+      }
+      continue;
+    }
     for (int i = std::max(ia, i0); i <= std::min(ib, i1); ++i) {
       // A texel already at or beyond anything this triangle can give is done.
       if (pl.keep_max ? row[i] >= hhi : row[i] <= hlo) continue;
@@ -318,6 +359,7 @@ void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, co
       }
     }
   }
+  if (n_q > 0) flush();
 }
 
 
@@ -974,8 +1016,10 @@ void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, cons
                      const double* seed_h, int border, const HeightSeeds& seeds, double* out,
                      const double* other) {
   resolve_heights_impl(M, world_from_m, seed_world_from_m, n, u, v, w, keep_max, seed_h, border, seeds, out, other,
-                       true);
+                       !t_reference_heights);
 }
+
+void use_reference_heights(bool on) { t_reference_heights = on; }
 
 void resolve_heights_reference(const Model& M, const Eigen::Isometry3d& world_from_m,
                                const Eigen::Isometry3d& seed_world_from_m, const Vec3& n, const Vec3& u,

@@ -147,6 +147,139 @@ void ResolveAll(const ResolveArgs& A) {
   }
 }
 
+// raster_triangle_surface's loop over a list of its texels (raster.cpp).
+void SurfaceTexels(const SurfaceTri& T, int count, const double* HWY_RESTRICT tx, const double* HWY_RESTRICT ty,
+                   double* HWY_RESTRICT hv, double* HWY_RESTRICT wax_out, double* HWY_RESTRICT way_out,
+                   uint8_t* HWY_RESTRICT wrote_out) {
+  const hn::ScalableTag<double> dd;
+  const hn::Rebind<float, decltype(dd)> df;
+  const hn::Rebind<int32_t, decltype(dd)> di;
+  using VD = hn::Vec<decltype(dd)>;
+  using VF = hn::Vec<decltype(df)>;
+  using VI = hn::Vec<decltype(di)>;
+  const size_t L = hn::Lanes(dd);
+  const VD lo = hn::Set(dd, -1e6), hi = hn::Set(dd, 1e6), zero = hn::Zero(dd), one = hn::Set(dd, 1.0);
+  const VD ox = hn::Set(dd, T.ox), oy = hn::Set(dd, T.oy), oh = hn::Set(dd, T.oh), tol2 = hn::Set(dd, T.tol2);
+  const VD x0 = hn::Set(dd, T.x0), y0 = hn::Set(dd, T.y0), x1 = hn::Set(dd, T.x1), y1 = hn::Set(dd, T.y1);
+  const VD x2 = hn::Set(dd, T.x2), y2 = hn::Set(dd, T.y2);
+  const VD e1x = hn::Set(dd, T.e1x), e1y = hn::Set(dd, T.e1y), e2x = hn::Set(dd, T.e2x), e2y = hn::Set(dd, T.e2y);
+  const VD inv = hn::Set(dd, T.inv);
+  const VD ax0 = hn::Set(dd, T.ax0), ay0 = hn::Set(dd, T.ay0);
+  const VD daxx = hn::Set(dd, T.dax_dx), daxy = hn::Set(dd, T.dax_dy), dayx = hn::Set(dd, T.day_dx),
+           dayy = hn::Set(dd, T.day_dy);
+  const VD sc0 = hn::Set(dd, T.scale[0]), sc1 = hn::Set(dd, T.scale[1]), sc2 = hn::Set(dd, T.scale[2]);
+  const VD nmargin = hn::Set(dd, -T.margin);
+  const VD hbound = hn::Set(dd, T.keep_max ? T.hhi : T.hlo);
+  const VI zero_i = hn::Zero(di), one_i = hn::Set(di, 1), wi = hn::Set(di, T.w);
+  const VI wmax = hn::Set(di, T.w - 1), hmax = hn::Set(di, T.h - 1), stride = hn::Set(di, T.stride);
+  const VF zero_f = hn::Zero(df);
+  const VF gx[3] = {hn::Set(df, T.gx4[0]), hn::Set(df, T.gx4[1]), hn::Set(df, T.gx4[2])};
+  const VF gy[3] = {hn::Set(df, T.gy4[0]), hn::Set(df, T.gy4[1]), hn::Set(df, T.gy4[2])};
+  const VF gn[3] = {hn::Set(df, T.n4[0]), hn::Set(df, T.n4[1]), hn::Set(df, T.n4[2])};
+  HWY_ALIGN int32_t idx[kMaxLanes];
+  HWY_ALIGN double okv[kMaxLanes], t_w[kMaxLanes];
+  auto dot = [&](VF v0, VF v1, VF v2, const VF* w) {
+    return hn::Add(hn::Add(hn::Mul(v0, w[0]), hn::Mul(v1, w[1])), hn::Add(hn::Mul(v2, w[2]), zero_f));
+  };
+  // bary of raster_triangle_surface: b1, b2 and b0 = 1 - b1 - b2.
+  auto bary = [&](VD px, VD py, VD& b0, VD& b1, VD& b2) {
+    const VD dx = hn::Sub(px, x0), dy = hn::Sub(py, y0);
+    b1 = hn::Mul(hn::Sub(hn::Mul(dx, e2y), hn::Mul(e2x, dy)), inv);
+    b2 = hn::Mul(hn::Sub(hn::Mul(e1x, dy), hn::Mul(dx, e1y)), inv);
+    b0 = hn::Sub(hn::Sub(one, b1), b2);
+  };
+  auto clamp0 = [&](VD b) { return hn::IfThenElse(hn::Lt(b, zero), zero, b); };  // std::max(b, 0.0)
+  // The caller pads the arrays to a whole number of vectors (kSpan is a
+  // multiple of every lane count); lanes past `count` start inactive.
+  for (int s = 0; s < count; s += static_cast<int>(L)) {
+    const size_t m = std::min(L, static_cast<size_t>(count - s));
+    const VD r0 = hn::LoadU(dd, hv + s);
+    // A texel already at or beyond anything this triangle can give is done.
+    auto active = hn::AndNot(T.keep_max ? hn::Ge(r0, hbound) : hn::Le(r0, hbound), hn::FirstN(dd, m));
+    if (hn::AllFalse(dd, active)) {
+      for (size_t l = 0; l < m; ++l) wrote_out[s + l] = 0;
+      continue;
+    }
+    const VD X = hn::LoadU(dd, tx + s), Y = hn::LoadU(dd, ty + s);
+    VD qx = X, qy = Y;
+    {
+      VD b0, b1, b2;
+      bary(qx, qy, b0, b1, b2);
+      const auto outside = hn::Or(hn::Or(hn::Lt(b0, zero), hn::Lt(b1, zero)), hn::Lt(b2, zero));
+      if (!hn::AllFalse(dd, outside)) {
+        const VD c0 = clamp0(b0), c1 = clamp0(b1), c2 = clamp0(b2);
+        const VD cs = hn::Add(hn::Add(c0, c1), c2);
+        const VD cx = hn::Div(hn::Add(hn::Add(hn::Mul(c0, x0), hn::Mul(c1, x1)), hn::Mul(c2, x2)), cs);
+        const VD cy = hn::Div(hn::Add(hn::Add(hn::Mul(c0, y0), hn::Mul(c1, y1)), hn::Mul(c2, y2)), cs);
+        qx = hn::IfThenElse(outside, cx, qx);
+        qy = hn::IfThenElse(outside, cy, qy);
+      }
+    }
+    VD rowv = r0;
+    VD wax = zero, way = zero;
+    auto wrote = hn::FirstN(dd, 0);
+    for (int it = 0; it < kMaxLateralIterations; ++it) {
+      const VD dqx = hn::Sub(qx, x0), dqy = hn::Sub(qy, y0);
+      const VD vax = hn::Add(hn::Add(ax0, hn::Mul(daxx, dqx)), hn::Mul(daxy, dqy));
+      const VD vay = hn::Add(hn::Add(ay0, hn::Mul(dayx, dqx)), hn::Mul(dayy, dqy));
+      active = hn::And(active, hn::And(hn::And(hn::Gt(vax, lo), hn::Lt(vax, hi)),
+                                       hn::And(hn::Gt(vay, lo), hn::Lt(vay, hi))));
+      if (hn::AllFalse(dd, active)) break;
+      const VD sx = hn::IfThenElseZero(active, vax), sy = hn::IfThenElseZero(active, vay);
+      const VD fx0 = hn::Floor(sx), fy0 = hn::Floor(sy);
+      const VF fx = hn::DemoteTo(df, hn::Sub(sx, fx0)), fy = hn::DemoteTo(df, hn::Sub(sy, fy0));
+      const VI i0v = hn::DemoteTo(di, fx0), j0v = hn::DemoteTo(di, fy0);
+      const VI ia = hn::Min(hn::Max(i0v, zero_i), wmax), ibv = hn::Min(hn::Max(hn::Add(i0v, one_i), zero_i), wmax);
+      const VI ja = hn::Min(hn::Max(j0v, zero_i), hmax), jb = hn::Min(hn::Max(hn::Add(j0v, one_i), zero_i), hmax);
+      if (T.ok) {
+        hn::Store(hn::Add(hn::Mul(ja, wi), ia), di, idx);
+        for (size_t l = 0; l < L; ++l) okv[l] = T.ok[idx[l]] ? 1.0 : 0.0;
+        active = hn::And(active, hn::Ne(hn::Load(dd, okv), zero));
+        if (hn::AllFalse(dd, active)) break;
+      }
+      const VI ra = hn::Mul(ja, stride), rb = hn::Mul(jb, stride);
+      const VI ca = hn::ShiftLeft<2>(ia), cb = hn::ShiftLeft<2>(ibv);
+      const VI o00 = hn::Add(ra, ca), o01 = hn::Add(ra, cb), o10 = hn::Add(rb, ca), o11 = hn::Add(rb, cb);
+      VF v[3];
+      for (int c = 0; c < 3; ++c) {
+        const float* base = T.rgba + c;
+        const VF a = hn::GatherIndex(df, base, o00), b = hn::GatherIndex(df, base, o01);
+        const VF cc = hn::GatherIndex(df, base, o10), d = hn::GatherIndex(df, base, o11);
+        const VF top = hn::Add(a, hn::Mul(fx, hn::Sub(b, a)));
+        const VF bot = hn::Add(cc, hn::Mul(fx, hn::Sub(d, cc)));
+        v[c] = hn::Add(top, hn::Mul(fy, hn::Sub(bot, top)));
+      }
+      const VD px = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gx));
+      const VD py = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gy));
+      const VD pz = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gn));
+      const VD rx = hn::Sub(X, hn::Add(px, ox)), ry = hn::Sub(Y, hn::Add(py, oy));
+      const auto in = hn::And(active, hn::Le(hn::Add(hn::Mul(rx, rx), hn::Mul(ry, ry)), tol2));
+      if (!hn::AllFalse(dd, in)) {
+        const VD h = hn::Add(pz, oh);
+        const auto better = hn::And(in, T.keep_max ? hn::Gt(h, rowv) : hn::Lt(h, rowv));
+        rowv = hn::IfThenElse(better, h, rowv);
+        wax = hn::IfThenElse(better, vax, wax);
+        way = hn::IfThenElse(better, vay, way);
+        wrote = hn::Or(wrote, better);
+        active = hn::AndNot(in, active);
+        if (hn::AllFalse(dd, active)) break;
+      }
+      qx = hn::Add(qx, rx);
+      qy = hn::Add(qy, ry);
+      VD b0, b1, b2;
+      bary(qx, qy, b0, b1, b2);
+      const auto gone = hn::Or(hn::Or(hn::Lt(hn::Mul(b0, sc0), nmargin), hn::Lt(hn::Mul(b1, sc1), nmargin)),
+                               hn::Lt(hn::Mul(b2, sc2), nmargin));
+      active = hn::AndNot(gone, active);
+    }
+    hn::StoreU(rowv, dd, hv + s);
+    hn::StoreU(wax, dd, wax_out + s);
+    hn::StoreU(way, dd, way_out + s);
+    hn::Store(hn::IfThenElseZero(wrote, one), dd, t_w);
+    for (size_t l = 0; l < m; ++l) wrote_out[s + l] = t_w[l] != 0.0;
+  }
+}
+
 const char* ResolveTarget() { return hwy::TargetName(HWY_TARGET); }
 
 }  // namespace HWY_NAMESPACE
@@ -160,10 +293,16 @@ namespace depth_simd {
 
 HWY_EXPORT(ResolveAll);
 HWY_EXPORT(ResolveTarget);
+HWY_EXPORT(SurfaceTexels);
 
 void resolve_all(const ResolveArgs& a) { HWY_DYNAMIC_DISPATCH(ResolveAll)(a); }
 
 const char* resolve_target() { return HWY_DYNAMIC_DISPATCH(ResolveTarget)(); }
+
+void surface_texels(const SurfaceTri& t, int count, const double* tx, const double* ty, double* h, double* ax,
+                    double* ay, uint8_t* wrote) {
+  HWY_DYNAMIC_DISPATCH(SurfaceTexels)(t, count, tx, ty, h, ax, ay, wrote);
+}
 
 }  // namespace depth_simd
 }  // namespace hrt

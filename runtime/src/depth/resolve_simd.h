@@ -37,3 +37,36 @@ void resolve_all(const ResolveArgs& a);
 const char* resolve_target();
 
 }  // namespace hrt::depth_simd
+
+namespace hrt::depth_simd {
+
+// One coarse triangle of the surface mode (raster_triangle_surface,
+// raster.cpp) over the texels of one row: the atlas and placement as above,
+// the triangle's grid corners, edges, barycentric and UV maps, the ownership
+// margin and the height range its points can reach.
+struct SurfaceTri {
+  const float* rgba;
+  int w, h;
+  int stride;
+  const uint8_t* ok;
+  float n4[4], gx4[4], gy4[4];
+  double ox, oy, oh, tol2;
+  double x0, y0, x1, y1, x2, y2;
+  double e1x, e1y, e2x, e2y, inv;
+  double ax0, ay0, dax_dx, dax_dy, day_dx, day_dy;
+  double scale[3], margin, hlo, hhi;
+  bool keep_max;
+};
+
+// Largest list surface_texels takes at once (a multiple of every lane count).
+constexpr int kSpan = 64;
+
+// Texels (tx[t], ty[t]), t < count, of the triangle, whose current heights
+// are h[t]: each texel's fixed point as raster_triangle_surface's scalar loop
+// runs it, the same bits. Where a texel's height improves, h[t] takes the new
+// height, (ax[t], ay[t]) the atlas point and wrote[t] = 1, else wrote[t] = 0.
+// The arrays hold kSpan entries (those past count are ignored).
+void surface_texels(const SurfaceTri& t, int count, const double* tx, const double* ty, double* h, double* ax,
+                    double* ay, uint8_t* wrote);
+
+}  // namespace hrt::depth_simd
