@@ -27,35 +27,98 @@ namespace hn = hwy::HWY_NAMESPACE;
 // Lanes of double in the widest vector of any target (AVX-512: 8), with room.
 constexpr size_t kMaxLanes = 16;
 
+// HeightSampler::project (raster.cpp) for the active lanes: the range test
+// (also NaN), the clamped 2 x 2 footprint, the unusable-quad flag, the
+// bilinear point in float and its dots with gx, gy and n. Lanes that fail
+// leave `active`; false when none is left. P is ResolveArgs or SurfaceTri.
+template <class DD>
+class Lookup {
+  using DF = hn::Rebind<float, DD>;
+  using DI = hn::Rebind<int32_t, DD>;
+  using VD = hn::Vec<DD>;
+  using VF = hn::Vec<DF>;
+  using VI = hn::Vec<DI>;
+
+ public:
+  template <class P>
+  explicit Lookup(const P& p)
+      : rgba_(p.rgba), ok_(p.ok), lo_(hn::Set(dd_, -1e6)), hi_(hn::Set(dd_, 1e6)), one_i_(hn::Set(di_, 1)),
+        wi_(hn::Set(di_, p.w)), wmax_(hn::Set(di_, p.w - 1)), hmax_(hn::Set(di_, p.h - 1)),
+        stride_(hn::Set(di_, p.stride)) {
+    for (int c = 0; c < 3; ++c)
+      gx_[c] = hn::Set(df_, p.gx4[c]), gy_[c] = hn::Set(df_, p.gy4[c]), gn_[c] = hn::Set(df_, p.n4[c]);
+  }
+
+  template <class M>
+  HWY_INLINE bool project(VD vax, VD vay, M& active, VD& px, VD& py, VD& pz) {
+    active = hn::And(active, hn::And(hn::And(hn::Gt(vax, lo_), hn::Lt(vax, hi_)),
+                                     hn::And(hn::Gt(vay, lo_), hn::Lt(vay, hi_))));
+    if (hn::AllFalse(dd_, active)) return false;
+    const VD sx = hn::IfThenElseZero(active, vax), sy = hn::IfThenElseZero(active, vay);
+    const VD fx0 = hn::Floor(sx), fy0 = hn::Floor(sy);
+    const VF fx = hn::DemoteTo(df_, hn::Sub(sx, fx0)), fy = hn::DemoteTo(df_, hn::Sub(sy, fy0));
+    const VI i0 = hn::DemoteTo(di_, fx0), j0 = hn::DemoteTo(di_, fy0), zero = hn::Zero(di_);
+    const VI ia = hn::Min(hn::Max(i0, zero), wmax_), ib = hn::Min(hn::Max(hn::Add(i0, one_i_), zero), wmax_);
+    const VI ja = hn::Min(hn::Max(j0, zero), hmax_), jb = hn::Min(hn::Max(hn::Add(j0, one_i_), zero), hmax_);
+    if (ok_) {
+      // Highway has no byte gather: the quad flags are read lane by lane.
+      hn::Store(hn::Add(hn::Mul(ja, wi_), ia), di_, idx_);
+      for (size_t l = 0; l < hn::Lanes(dd_); ++l) okv_[l] = ok_[idx_[l]] ? 1.0 : 0.0;
+      active = hn::And(active, hn::Ne(hn::Load(dd_, okv_), hn::Zero(dd_)));
+      if (hn::AllFalse(dd_, active)) return false;
+    }
+    const VI ra = hn::Mul(ja, stride_), rb = hn::Mul(jb, stride_);
+    const VI ca = hn::ShiftLeft<2>(ia), cb = hn::ShiftLeft<2>(ib);
+    const VI o00 = hn::Add(ra, ca), o01 = hn::Add(ra, cb), o10 = hn::Add(rb, ca), o11 = hn::Add(rb, cb);
+    VF v[3];
+    for (int c = 0; c < 3; ++c) {  // Bilerp
+      const float* base = rgba_ + c;
+      const VF a = hn::GatherIndex(df_, base, o00), b = hn::GatherIndex(df_, base, o01);
+      const VF cc = hn::GatherIndex(df_, base, o10), d = hn::GatherIndex(df_, base, o11);
+      const VF top = hn::Add(a, hn::Mul(fx, hn::Sub(b, a)));
+      const VF bot = hn::Add(cc, hn::Mul(fx, hn::Sub(d, cc)));
+      v[c] = hn::Add(top, hn::Mul(fy, hn::Sub(bot, top)));
+    }
+    px = hn::PromoteTo(dd_, dot(v, gx_));
+    py = hn::PromoteTo(dd_, dot(v, gy_));
+    pz = hn::PromoteTo(dd_, dot(v, gn_));
+    return true;
+  }
+
+ private:
+  // _mm_dp_ps's order: (p0 + p1) + (p2 + 0).
+  HWY_INLINE VF dot(const VF* v, const VF* w) const {
+    return hn::Add(hn::Add(hn::Mul(v[0], w[0]), hn::Mul(v[1], w[1])), hn::Add(hn::Mul(v[2], w[2]), hn::Zero(df_)));
+  }
+  const DD dd_{};
+  const DF df_{};
+  const DI di_{};
+  const float* rgba_;
+  const uint8_t* ok_;
+  VD lo_, hi_;
+  VI one_i_, wi_, wmax_, hmax_, stride_;
+  VF gx_[3], gy_[3], gn_[3];
+  HWY_ALIGN int32_t idx_[kMaxLanes];
+  HWY_ALIGN double okv_[kMaxLanes];
+};
+
 void ResolveAll(const ResolveArgs& A) {
   const hn::ScalableTag<double> dd;
   const hn::Rebind<float, decltype(dd)> df;
-  const hn::Rebind<int32_t, decltype(dd)> di;
   using VD = hn::Vec<decltype(dd)>;
   using VF = hn::Vec<decltype(df)>;
-  using VI = hn::Vec<decltype(di)>;
   const size_t L = hn::Lanes(dd);
   const int N = A.N, S = A.N + 2 * A.border;
-  const VD lo = hn::Set(dd, -1e6), hi = hn::Set(dd, 1e6), inf = hn::Set(dd, HUGE_VAL);
+  const VD inf = hn::Set(dd, HUGE_VAL);
+  Lookup<decltype(dd)> look(A);
   const VD ox = hn::Set(dd, A.ox), oy = hn::Set(dd, A.oy), oh = hn::Set(dd, A.oh), tol2 = hn::Set(dd, A.tol2);
   const VD none = hn::Set(dd, A.none), uncovered = hn::Set(dd, -A.none);
   const VD gx0 = hn::Set(dd, A.gx0), gxi = hn::Set(dd, A.gxi), gxj = hn::Set(dd, A.gxj), gxh = hn::Set(dd, A.gxh);
   const VD gy0 = hn::Set(dd, A.gy0), gyi = hn::Set(dd, A.gyi), gyj = hn::Set(dd, A.gyj), gyh = hn::Set(dd, A.gyh);
-  const VI zero_i = hn::Zero(di), one_i = hn::Set(di, 1), wi = hn::Set(di, A.w);
-  const VI wmax = hn::Set(di, A.w - 1), hmax = hn::Set(di, A.h - 1), stride = hn::Set(di, A.stride);
-  const VF zero_f = hn::Zero(df);
-  const VF gx[3] = {hn::Set(df, A.gx4[0]), hn::Set(df, A.gx4[1]), hn::Set(df, A.gx4[2])};
-  const VF gy[3] = {hn::Set(df, A.gy4[0]), hn::Set(df, A.gy4[1]), hn::Set(df, A.gy4[2])};
-  const VF gn[3] = {hn::Set(df, A.n4[0]), hn::Set(df, A.n4[1]), hn::Set(df, A.n4[2])};
   const VD iota = hn::Iota(dd, 0.0);
-  HWY_ALIGN int32_t idx[kMaxLanes];
-  HWY_ALIGN double okv[kMaxLanes];
   // A row's last, partial vector is read from and written to these.
   HWY_ALIGN double t_h[kMaxLanes], t_a[2 * kMaxLanes], t_o[kMaxLanes], t_out[kMaxLanes];
   HWY_ALIGN float t_j[4 * kMaxLanes];
-  auto dot = [&](VF v0, VF v1, VF v2, const VF* w) {
-    return hn::Add(hn::Add(hn::Mul(v0, w[0]), hn::Mul(v1, w[1])), hn::Add(hn::Mul(v2, w[2]), zero_f));
-  };
   for (int j = 0; j < N; ++j) {
     const VD Y = hn::Set(dd, static_cast<double>(j));
     const size_t row = static_cast<size_t>(j) * N;
@@ -99,38 +162,8 @@ void ResolveAll(const ResolveArgs& A) {
         }
         VD h = none;
         for (int it = 0; it < kMaxLateralIterations; ++it) {
-          // HeightSampler::project: the range (also NaN), the footprint, the quad.
-          active = hn::And(active, hn::And(hn::And(hn::Gt(vax, lo), hn::Lt(vax, hi)),
-                                           hn::And(hn::Gt(vay, lo), hn::Lt(vay, hi))));
-          if (hn::AllFalse(dd, active)) break;
-          const VD sx = hn::IfThenElseZero(active, vax), sy = hn::IfThenElseZero(active, vay);
-          const VD fx0 = hn::Floor(sx), fy0 = hn::Floor(sy);
-          const VF fx = hn::DemoteTo(df, hn::Sub(sx, fx0)), fy = hn::DemoteTo(df, hn::Sub(sy, fy0));
-          const VI i0v = hn::DemoteTo(di, fx0), j0v = hn::DemoteTo(di, fy0);
-          const VI ia = hn::Min(hn::Max(i0v, zero_i), wmax), ib = hn::Min(hn::Max(hn::Add(i0v, one_i), zero_i), wmax);
-          const VI ja = hn::Min(hn::Max(j0v, zero_i), hmax), jb = hn::Min(hn::Max(hn::Add(j0v, one_i), zero_i), hmax);
-          if (A.ok) {
-            // Highway has no byte gather: the quad flags are read lane by lane.
-            hn::Store(hn::Add(hn::Mul(ja, wi), ia), di, idx);
-            for (size_t l = 0; l < L; ++l) okv[l] = A.ok[idx[l]] ? 1.0 : 0.0;
-            active = hn::And(active, hn::Ne(hn::Load(dd, okv), hn::Zero(dd)));
-            if (hn::AllFalse(dd, active)) break;
-          }
-          const VI ra = hn::Mul(ja, stride), rb = hn::Mul(jb, stride);
-          const VI ca = hn::ShiftLeft<2>(ia), cb = hn::ShiftLeft<2>(ib);
-          const VI o00 = hn::Add(ra, ca), o01 = hn::Add(ra, cb), o10 = hn::Add(rb, ca), o11 = hn::Add(rb, cb);
-          VF v[3];
-          for (int c = 0; c < 3; ++c) {
-            const float* base = A.rgba + c;
-            const VF a = hn::GatherIndex(df, base, o00), b = hn::GatherIndex(df, base, o01);
-            const VF cc = hn::GatherIndex(df, base, o10), d = hn::GatherIndex(df, base, o11);
-            const VF top = hn::Add(a, hn::Mul(fx, hn::Sub(b, a)));
-            const VF bot = hn::Add(cc, hn::Mul(fx, hn::Sub(d, cc)));
-            v[c] = hn::Add(top, hn::Mul(fy, hn::Sub(bot, top)));
-          }
-          const VD px = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gx));
-          const VD py = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gy));
-          const VD pz = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gn));
+          VD px, py, pz;
+          if (!look.project(vax, vay, active, px, py, pz)) break;
           const VD rx = hn::Sub(X, hn::Add(px, ox)), ry = hn::Sub(Y, hn::Add(py, oy));
           const auto in = hn::And(active, hn::Le(hn::Add(hn::Mul(rx, rx), hn::Mul(ry, ry)), tol2));
           h = hn::IfThenElse(in, hn::Add(pz, oh), h);
@@ -152,13 +185,10 @@ void SurfaceTexels(const SurfaceTri& T, int count, const double* HWY_RESTRICT tx
                    double* HWY_RESTRICT hv, double* HWY_RESTRICT wax_out, double* HWY_RESTRICT way_out,
                    uint8_t* HWY_RESTRICT wrote_out) {
   const hn::ScalableTag<double> dd;
-  const hn::Rebind<float, decltype(dd)> df;
-  const hn::Rebind<int32_t, decltype(dd)> di;
   using VD = hn::Vec<decltype(dd)>;
-  using VF = hn::Vec<decltype(df)>;
-  using VI = hn::Vec<decltype(di)>;
   const size_t L = hn::Lanes(dd);
-  const VD lo = hn::Set(dd, -1e6), hi = hn::Set(dd, 1e6), zero = hn::Zero(dd), one = hn::Set(dd, 1.0);
+  const VD zero = hn::Zero(dd), one = hn::Set(dd, 1.0);
+  Lookup<decltype(dd)> look(T);
   const VD ox = hn::Set(dd, T.ox), oy = hn::Set(dd, T.oy), oh = hn::Set(dd, T.oh), tol2 = hn::Set(dd, T.tol2);
   const VD x0 = hn::Set(dd, T.x0), y0 = hn::Set(dd, T.y0), x1 = hn::Set(dd, T.x1), y1 = hn::Set(dd, T.y1);
   const VD x2 = hn::Set(dd, T.x2), y2 = hn::Set(dd, T.y2);
@@ -170,17 +200,7 @@ void SurfaceTexels(const SurfaceTri& T, int count, const double* HWY_RESTRICT tx
   const VD sc0 = hn::Set(dd, T.scale[0]), sc1 = hn::Set(dd, T.scale[1]), sc2 = hn::Set(dd, T.scale[2]);
   const VD nmargin = hn::Set(dd, -T.margin);
   const VD hbound = hn::Set(dd, T.keep_max ? T.hhi : T.hlo);
-  const VI zero_i = hn::Zero(di), one_i = hn::Set(di, 1), wi = hn::Set(di, T.w);
-  const VI wmax = hn::Set(di, T.w - 1), hmax = hn::Set(di, T.h - 1), stride = hn::Set(di, T.stride);
-  const VF zero_f = hn::Zero(df);
-  const VF gx[3] = {hn::Set(df, T.gx4[0]), hn::Set(df, T.gx4[1]), hn::Set(df, T.gx4[2])};
-  const VF gy[3] = {hn::Set(df, T.gy4[0]), hn::Set(df, T.gy4[1]), hn::Set(df, T.gy4[2])};
-  const VF gn[3] = {hn::Set(df, T.n4[0]), hn::Set(df, T.n4[1]), hn::Set(df, T.n4[2])};
-  HWY_ALIGN int32_t idx[kMaxLanes];
-  HWY_ALIGN double okv[kMaxLanes], t_w[kMaxLanes];
-  auto dot = [&](VF v0, VF v1, VF v2, const VF* w) {
-    return hn::Add(hn::Add(hn::Mul(v0, w[0]), hn::Mul(v1, w[1])), hn::Add(hn::Mul(v2, w[2]), zero_f));
-  };
+  HWY_ALIGN double t_w[kMaxLanes];
   // bary of raster_triangle_surface: b1, b2 and b0 = 1 - b1 - b2.
   auto bary = [&](VD px, VD py, VD& b0, VD& b1, VD& b2) {
     const VD dx = hn::Sub(px, x0), dy = hn::Sub(py, y0);
@@ -222,36 +242,8 @@ void SurfaceTexels(const SurfaceTri& T, int count, const double* HWY_RESTRICT tx
       const VD dqx = hn::Sub(qx, x0), dqy = hn::Sub(qy, y0);
       const VD vax = hn::Add(hn::Add(ax0, hn::Mul(daxx, dqx)), hn::Mul(daxy, dqy));
       const VD vay = hn::Add(hn::Add(ay0, hn::Mul(dayx, dqx)), hn::Mul(dayy, dqy));
-      active = hn::And(active, hn::And(hn::And(hn::Gt(vax, lo), hn::Lt(vax, hi)),
-                                       hn::And(hn::Gt(vay, lo), hn::Lt(vay, hi))));
-      if (hn::AllFalse(dd, active)) break;
-      const VD sx = hn::IfThenElseZero(active, vax), sy = hn::IfThenElseZero(active, vay);
-      const VD fx0 = hn::Floor(sx), fy0 = hn::Floor(sy);
-      const VF fx = hn::DemoteTo(df, hn::Sub(sx, fx0)), fy = hn::DemoteTo(df, hn::Sub(sy, fy0));
-      const VI i0v = hn::DemoteTo(di, fx0), j0v = hn::DemoteTo(di, fy0);
-      const VI ia = hn::Min(hn::Max(i0v, zero_i), wmax), ibv = hn::Min(hn::Max(hn::Add(i0v, one_i), zero_i), wmax);
-      const VI ja = hn::Min(hn::Max(j0v, zero_i), hmax), jb = hn::Min(hn::Max(hn::Add(j0v, one_i), zero_i), hmax);
-      if (T.ok) {
-        hn::Store(hn::Add(hn::Mul(ja, wi), ia), di, idx);
-        for (size_t l = 0; l < L; ++l) okv[l] = T.ok[idx[l]] ? 1.0 : 0.0;
-        active = hn::And(active, hn::Ne(hn::Load(dd, okv), zero));
-        if (hn::AllFalse(dd, active)) break;
-      }
-      const VI ra = hn::Mul(ja, stride), rb = hn::Mul(jb, stride);
-      const VI ca = hn::ShiftLeft<2>(ia), cb = hn::ShiftLeft<2>(ibv);
-      const VI o00 = hn::Add(ra, ca), o01 = hn::Add(ra, cb), o10 = hn::Add(rb, ca), o11 = hn::Add(rb, cb);
-      VF v[3];
-      for (int c = 0; c < 3; ++c) {
-        const float* base = T.rgba + c;
-        const VF a = hn::GatherIndex(df, base, o00), b = hn::GatherIndex(df, base, o01);
-        const VF cc = hn::GatherIndex(df, base, o10), d = hn::GatherIndex(df, base, o11);
-        const VF top = hn::Add(a, hn::Mul(fx, hn::Sub(b, a)));
-        const VF bot = hn::Add(cc, hn::Mul(fx, hn::Sub(d, cc)));
-        v[c] = hn::Add(top, hn::Mul(fy, hn::Sub(bot, top)));
-      }
-      const VD px = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gx));
-      const VD py = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gy));
-      const VD pz = hn::PromoteTo(dd, dot(v[0], v[1], v[2], gn));
+      VD px, py, pz;
+      if (!look.project(vax, vay, active, px, py, pz)) break;
       const VD rx = hn::Sub(X, hn::Add(px, ox)), ry = hn::Sub(Y, hn::Add(py, oy));
       const auto in = hn::And(active, hn::Le(hn::Add(hn::Mul(rx, rx), hn::Mul(ry, ry)), tol2));
       if (!hn::AllFalse(dd, in)) {
