@@ -9,7 +9,7 @@ JOBS  ?= $(shell nproc)
 
 APT_PACKAGES := build-essential cmake pkg-config python3-venv \
   libeigen3-dev libfcl-dev libopenexr-dev nlohmann-json3-dev libcli11-dev libtomlplusplus-dev \
-  libgtest-dev googletest libssl-dev libhwy-dev \
+  libgtest-dev googletest libssl-dev libhwy-dev python3-dev \
   libegl-mesa0 libgl1-mesa-dri libegl-dev libepoxy-dev \
   clang libclang-rt-14-dev \
   chromium chromium-driver
@@ -39,11 +39,14 @@ venv: $(VENV)/.stamp
 
 # The runtime and the example plugin only: the C++ test suite (about 40 % of
 # what the project compiles) is built by `make test` (test-cpp).
-runtime: apt
-	cmake -S runtime -B $(BUILD) -DCMAKE_BUILD_TYPE=Release >/dev/null
-	cmake --build $(BUILD) -j $(JOBS) --target hrt hrt_example_device
+# The Python module hrt._hrt (nanobind, from the venv) is built beside them, and
+# a .pth file puts $(BUILD)/python on the venv's path: `import hrt` (docs/python.md).
+runtime: apt venv
+	cmake -S runtime -B $(BUILD) -DCMAKE_BUILD_TYPE=Release -DHRT_PYTHON=ON -DPython_EXECUTABLE=$(CURDIR)/$(PY) >/dev/null
+	cmake --build $(BUILD) -j $(JOBS) --target hrt hrt_example_device hrt_python
 	@mkdir -p $(VENV)/bin
 	ln -sf ../../$(BUILD)/hrt $(VENV)/bin/hrt
+	echo "$(CURDIR)/$(BUILD)/python" > "$$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/hrt-runtime.pth"
 
 test: setup test-cpp test-py test-fuzz
 

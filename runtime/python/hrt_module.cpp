@@ -1,0 +1,237 @@
+// The Python module `hrt._hrt` (nanobind): bundles, scenes and queries of the
+// runtime from Python, with numpy arrays in and out (docs/python.md). The
+// package runtime/python/hrt/__init__.py re-exports it.
+#include <cmath>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/shared_ptr.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+
+#include "hrt/hrt.h"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+
+namespace {
+
+// (Returned through nb::cast where a property returns one: a property's
+// default policy, reference_internal, does not apply to an array that
+// already has an owner.)
+// A numpy array owning a copy of `n` doubles shaped `shape` (results are
+// small: a wrench, a few patches; copying them keeps their lifetime simple).
+nb::ndarray<nb::numpy, double> array(const double* data, std::initializer_list<size_t> shape) {
+  size_t n = 1;
+  for (size_t s : shape) n *= s;
+  auto* buf = new double[n];
+  std::copy(data, data + n, buf);
+  nb::capsule owner(buf, [](void* p) noexcept { delete[] static_cast<double*>(p); });
+  return nb::ndarray<nb::numpy, double>(buf, shape, owner);
+}
+
+nb::ndarray<nb::numpy, double> vec3(const hrt::Vec3& v) { return array(v.data(), {3}); }
+
+hrt::HeightMode height_mode(const std::string& s) {
+  if (s == "surface") return hrt::HeightMode::surface;
+  if (s == "coarse") return hrt::HeightMode::coarse;
+  if (s == "mesh") return hrt::HeightMode::mesh;
+  throw std::invalid_argument("heights must be 'surface', 'coarse' or 'mesh', got '" + s + "'");
+}
+
+// A scene and its preallocated state, with the models kept alive: one query
+// at a time (the State is the frame's scratch).
+struct PyScene {
+  std::vector<std::shared_ptr<hrt::Model>> models;
+  std::unique_ptr<hrt::Scene> scene;
+  std::unique_ptr<hrt::State> state;
+};
+
+// Poses as an (objects, 7) array: x, y, z, qx, qy, qz, qw per object.
+void set_poses(PyScene& s, nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> poses) {
+  const size_t n = s.models.size();
+  if (poses.shape(0) != n || poses.shape(1) != 7)
+    throw std::invalid_argument("poses must be an array of shape (" + std::to_string(n) + ", 7) (x y z qx qy qz qw per " +
+                                "object), got (" + std::to_string(poses.shape(0)) + ", " +
+                                std::to_string(poses.shape(1)) + ")");
+  const double* p = poses.data();
+  for (size_t i = 0; i < n; ++i, p += 7) {
+    for (int k = 0; k < 7; ++k)
+      if (!std::isfinite(p[k])) throw std::invalid_argument("poses[" + std::to_string(i) + "] is not finite");
+    const Eigen::Quaterniond q(p[6], p[3], p[4], p[5]);
+    const double norm = q.coeffs().stableNorm();
+    // The tolerance of `hrt query --pose-a` (a unit quaternion, normalized).
+    if (!(std::abs(norm - 1.0) <= 1e-6))
+      throw std::invalid_argument("poses[" + std::to_string(i) + "]: the quaternion (qx qy qz qw) has norm " +
+                                  std::to_string(norm) + ", expected a unit quaternion");
+    hrt::Pose& pose = s.state->poses[i];
+    pose.position = hrt::Vec3(p[0], p[1], p[2]);
+    pose.rotation = q.normalized();
+  }
+}
+
+nb::dict result(const PyScene& s) {
+  const hrt::State& st = *s.state;
+  const int m = st.num_patches;
+  std::vector<double> delta(m), n(3 * m), force(3 * m), torque(3 * m), p_a(3 * m), p_b(3 * m), grad(6 * m),
+      delta_bound(m);
+  std::vector<int64_t> ids(m), object_b(m);
+  nb::list covered, refused, clamped;
+  for (int k = 0; k < m; ++k) {
+    const hrt::ContactPatch& c = st.patches[static_cast<size_t>(k)];
+    delta[k] = c.delta;
+    delta_bound[k] = c.delta_bound;
+    ids[k] = static_cast<int64_t>(st.patch_ids[static_cast<size_t>(k)]);
+    object_b[k] = c.object_b;
+    for (int j = 0; j < 3; ++j) {
+      n[3 * k + j] = c.n[j];
+      force[3 * k + j] = c.force[j];
+      torque[3 * k + j] = c.torque[j];
+      p_a[3 * k + j] = c.p_a[j];
+      p_b[3 * k + j] = c.p_b[j];
+    }
+    for (int j = 0; j < 6; ++j) grad[6 * k + j] = c.grad[j];
+    covered.append(c.covered);
+    refused.append(c.refused);
+    clamped.append(c.clamped);
+  }
+  const size_t um = static_cast<size_t>(m);
+  nb::dict patches;
+  patches["id"] = nb::cast(ids);
+  patches["object_b"] = nb::cast(object_b);
+  patches["delta"] = array(delta.data(), {um});
+  patches["delta_bound"] = array(delta_bound.data(), {um});
+  patches["n"] = array(n.data(), {um, 3});
+  patches["grad"] = array(grad.data(), {um, 6});
+  patches["force"] = array(force.data(), {um, 3});
+  patches["torque"] = array(torque.data(), {um, 3});
+  patches["p_a"] = array(p_a.data(), {um, 3});
+  patches["p_b"] = array(p_b.data(), {um, 3});
+  patches["covered"] = covered;
+  patches["refused"] = refused;
+  patches["clamped"] = clamped;
+  std::vector<double> wb(6 * s.models.size(), 0.0);
+  for (size_t b = 1; b < s.models.size(); ++b)
+    for (int j = 0; j < 6; ++j) wb[6 * b + j] = st.wrench_b[b][j];
+  nb::dict out;
+  out["force"] = vec3(st.force);
+  out["torque"] = vec3(st.torque);
+  out["wrench_b"] = array(wb.data(), {s.models.size(), 6});
+  out["pairs"] = st.num_pairs;
+  out["patches"] = patches;
+  nb::dict t;
+  t["collision"] = st.timings.collision_us;
+  t["clustering"] = st.timings.clustering_us;
+  t["force"] = st.timings.force_us;
+  t["total"] = st.timings.total_us;
+  out["timings_us"] = t;
+  return out;
+}
+
+}  // namespace
+
+NB_MODULE(_hrt, m) {
+  m.doc() = "hrt: haptic rendering of textured models (the C++ runtime, bound with nanobind)";
+  m.attr("__version__") = HRT_VERSION_STRING;
+  m.attr("BUNDLE_FORMAT_MAJOR") = HRT_BUNDLE_FORMAT_MAJOR;
+  m.attr("BUNDLE_FORMAT_MINOR") = HRT_BUNDLE_FORMAT_MINOR;
+
+  // hrt::BundleError -> hrt.BundleError (a ValueError) with the C++ message
+  // (one line naming the file and the problem) and error_class set by the
+  // Python package (hrt/__init__.py parses nothing: it is passed through).
+  static nb::object bundle_error = nb::borrow(PyErr_NewException("hrt.BundleError", PyExc_ValueError, nullptr));
+  m.attr("BundleError") = bundle_error;
+  nb::register_exception_translator([](const std::exception_ptr& p, void*) {
+    try {
+      std::rethrow_exception(p);
+    } catch (const hrt::BundleError& e) {
+      nb::object err = bundle_error(e.what());
+      err.attr("error_class") = hrt::to_string(e.error_class());
+      PyErr_SetObject(bundle_error.ptr(), err.ptr());
+    }
+  });
+
+  nb::class_<hrt::Model>(m, "Model", "A loaded haptic bundle (hrt::Model): coarse mesh, atlas, pieces, mass.")
+      .def_ro("path", &hrt::Model::path, "The bundle directory as given.")
+      .def_ro("name", &hrt::Model::name, "The source mesh's file name (manifest).")
+      .def_ro("format_version", &hrt::Model::format_version, "The bundle's format version, \"1.x\".")
+      .def_prop_ro("num_faces", [](const hrt::Model& x) { return x.faces.size(); }, "Triangles of the coarse mesh.")
+      .def_prop_ro("num_pieces", [](const hrt::Model& x) { return x.pieces.size(); }, "Convex pieces.")
+      .def_prop_ro("vertices", [](const hrt::Model& x) {
+            return nb::cast(array(x.vertices.empty() ? nullptr : x.vertices[0].data(), {x.vertices.size(), 3}));
+          }, "Coarse mesh vertices, (V, 3) float64, metres, object frame (a copy).")
+      .def_prop_ro("volume", [](const hrt::Model& x) { return x.mass.volume; }, "Volume, m^3.")
+      .def_prop_ro("center_of_mass", [](const hrt::Model& x) { return nb::cast(vec3(x.mass.center_of_mass)); },
+                   "Centre of mass, object frame, metres.")
+      .def("__repr__", [](const hrt::Model& x) {
+        return "<hrt.Model '" + x.path + "' (" + x.name + ", format " + x.format_version + ", " +
+               std::to_string(x.faces.size()) + " faces, " + std::to_string(x.pieces.size()) + " pieces)>";
+      });
+
+  m.def("load_bundle", [](const std::string& path, bool verify_hashes) {
+        hrt::LoadOptions lo;
+        lo.verify_hashes = verify_hashes;
+        return std::make_shared<hrt::Model>(hrt::load_bundle(path, lo));
+      }, "path"_a, "verify_hashes"_a = true,
+      "Loads and checks a haptic bundle (.hbundle directory). Raises hrt.BundleError (a ValueError, with\n"
+      "error_class 'io', 'version', 'schema', 'hash', 'mesh', 'atlas' or 'pieces') on bad input.");
+
+  nb::class_<PyScene>(m, "Scene",
+                      "A scene (the probe A first, then the objects B) and its preallocated frame state.\n"
+                      "One query at a time per Scene (it owns the frame's scratch).")
+      .def("__init__", [](PyScene* self, std::vector<std::shared_ptr<hrt::Model>> models, int resolution,
+                          double stiffness, double lin_step, double ang_step, bool shortcut, const std::string& heights,
+                          double margin, int max_patches, int threads) {
+             // Everything is built first: an exception leaves *self unconstructed.
+             for (const auto& p : models)
+               if (!p) throw std::invalid_argument("a scene object is None");
+             hrt::SceneOptions o;
+             o.force.resolution = resolution;
+             o.force.stiffness = stiffness;
+             o.force.lin_step = lin_step;
+             o.force.ang_step = ang_step;
+             o.force.shortcut = shortcut;
+             o.force.heights = height_mode(heights);
+             o.collision.margin = margin;
+             o.cluster.max_patches = max_patches;
+             o.threads = threads;
+             std::vector<const hrt::Model*> objects;
+             for (const auto& p : models) objects.push_back(p.get());
+             auto scene = std::make_unique<hrt::Scene>(objects, o);
+             auto state = std::make_unique<hrt::State>(*scene);
+             new (self) PyScene{std::move(models), std::move(scene), std::move(state)};
+           },
+           "models"_a, "resolution"_a = hrt::kDefaultResolution, "stiffness"_a = hrt::kDefaultStiffness,
+           "lin_step"_a = 0.0, "ang_step"_a = 0.0, "shortcut"_a = false, "heights"_a = "surface",
+           "margin"_a = -1.0, "max_patches"_a = 32, "threads"_a = 1,
+           "models: [probe A, B, ...] from load_bundle (the same Model may appear twice). The options are\n"
+           "`hrt query`'s: grid resolution N, stiffness k (N/m), finite-difference steps (0: automatic),\n"
+           "the Sec. 5.2 shortcut, heights 'surface'|'coarse'|'mesh', collision margin (m, -1: automatic),\n"
+           "most patches per frame, threads (0: every hardware thread). Raises ValueError on bad options.")
+      .def("query", [](PyScene& s, nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> poses) {
+             set_poses(s, poses);
+             {
+               nb::gil_scoped_release release;
+               hrt::frame(*s.scene, *s.state);
+             }
+             return result(s);
+           }, "poses"_a,
+           "One frame at the given poses ((objects, 7) float64: x y z qx qy qz qw per object, world\n"
+           "frame). Returns a dict: force and torque on the probe (world, torque about its centre of\n"
+           "mass), wrench_b (objects, 6), pairs, patches (arrays per patch: id, object_b, delta,\n"
+           "delta_bound, n, grad, force, torque, p_a, p_b, covered, refused, clamped) and timings_us.\n"
+           "Successive queries are successive frames of one session: patches keep their identity\n"
+           "(id, u, texel size) from one query to the next, as in `hrt run`. A query after reset(),\n"
+           "or the first, equals `hrt query --json` at the same poses, bit for bit.")
+      .def("reset", [](PyScene& s) { s.state = std::make_unique<hrt::State>(*s.scene); },
+           "Forgets the previous frames (a fresh State): the next query is like a first one.")
+      .def_prop_ro("size", [](const PyScene& s) { return s.models.size(); }, "Objects in the scene.")
+      .def("tolerance", [](const PyScene& s, int b) {
+             if (b < 1 || b >= static_cast<int>(s.models.size())) throw nb::index_error("object index out of range");
+             return s.scene->tolerance(b);
+           }, "b"_a, "The pair tolerance of object b >= 1 against the probe (m).");
+}
