@@ -9,7 +9,7 @@ JOBS  ?= $(shell nproc)
 
 APT_PACKAGES := build-essential cmake pkg-config python3-venv \
   libeigen3-dev libfcl-dev libopenexr-dev nlohmann-json3-dev libcli11-dev libtomlplusplus-dev \
-  libgtest-dev googletest libssl-dev libhwy-dev python3-dev \
+  libgtest-dev googletest libssl-dev libhwy-dev python3-dev ccache \
   libegl-mesa0 libgl1-mesa-dri libegl-dev libepoxy-dev \
   clang libclang-rt-14-dev \
   chromium chromium-driver
@@ -32,7 +32,7 @@ apt:
 $(VENV)/.stamp: pyproject.toml
 	python3 -m venv $(VENV)
 	$(VENV)/bin/pip install -q --upgrade pip "setuptools>=77" wheel
-	$(VENV)/bin/pip install -q -e '.[test]'
+	$(VENV)/bin/pip install -q -C wheel.cmake=false -e '.[test]'
 	touch $@
 
 venv: $(VENV)/.stamp
@@ -43,7 +43,7 @@ venv: $(VENV)/.stamp
 # a .pth file puts $(BUILD)/python on the venv's path: `import hrt` (docs/python.md).
 runtime: apt venv
 	cmake -S runtime -B $(BUILD) -DCMAKE_BUILD_TYPE=Release -DHRT_PYTHON=ON -DPython_EXECUTABLE=$(CURDIR)/$(PY) >/dev/null
-	cmake --build $(BUILD) -j $(JOBS) --target hrt hrt_example_device hrt_python
+	cmake --build $(BUILD) -j $(JOBS) --target hrt hrt_example_device hrt_python hrt_python_stub
 	@mkdir -p $(VENV)/bin
 	ln -sf ../../$(BUILD)/hrt $(VENV)/bin/hrt
 	echo "$(CURDIR)/$(BUILD)/python" > "$$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/hrt-runtime.pth"

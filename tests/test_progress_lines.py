@@ -120,16 +120,16 @@ def _batch_cfg(d: Path) -> Path:
 
 
 def test_make_demo_builds_no_cpp_tests_and_the_licence_is_an_spdx_string():
-    """`make demo` builds the runtime and the example plugin only (the C++ test suite is
-    `make test`'s), and pyproject's licence is an SPDX string with no licence classifier,
-    the form setuptools >= 77 takes without its deprecation warnings."""
+    """`make demo` builds the runtime, the example plugin and the Python module only (the
+    C++ test suite is `make test`'s), and pyproject's licence is an SPDX string with no
+    licence classifier (PEP 639, which the build backend reads without warnings)."""
     import tomllib
 
     mk = (REPO / "Makefile").read_text()
     assert re.search(r"^demo: setup$", mk, re.M)
     runtime = re.search(r"^runtime:.*?(?=^\S)", mk, re.M | re.S).group(0)
     targets = re.search(r"--target ([^\n]+)", runtime).group(1).split()
-    assert targets == ["hrt", "hrt_example_device"], targets
+    assert targets == ["hrt", "hrt_example_device", "hrt_python", "hrt_python_stub"], targets
     proj = tomllib.loads((REPO / "pyproject.toml").read_text())
     assert isinstance(proj["project"]["license"], str)
     assert not any(c.startswith("License ::") for c in proj["project"].get("classifiers", []))

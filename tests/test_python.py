@@ -151,3 +151,79 @@ def test_no_leak_over_many_queries(models):
     grown = rss_bytes() - before
     assert r["patches"]["delta"].shape == (1,)
     assert grown <= 10 * 2**20, f"RSS grew by {grown / 2**20:.1f} MB"
+
+
+# ----------------------------------------------------------------------------
+# Sessions: hrt.Runner against `hrt run --lockstep`
+# ----------------------------------------------------------------------------
+
+
+def session_scene(tmp_path, name: str) -> "Path":
+    """The pebble pressed into the bumpy blob and slid 2 mm across it at a 23-degree heading,
+    turned by 0.3 rad, over 0.3 s (a scripted device; friction on)."""
+    import sessions as S
+    q = S.quat([0.2, 0.1, 1.0], 0.3)
+    times = np.linspace(0.0, 0.3, 31)
+    s = np.clip((times - 0.05) / 0.25, 0.0, 1.0)
+    head = np.array([np.cos(np.radians(23)), np.sin(np.radians(23)), 0.0])
+    positions = [[0.0, 0.0, 0.0172 - 0.0005 * min(t / 0.05, 1.0)] + 0.002 * si * head for t, si in zip(times, s)]
+    traj = S.write_trajectory(tmp_path / f"{name}.csv", times, positions, [q] * len(times))
+    tables = {
+        "run": {"duration": 0.3, "lockstep": True},
+        "object": [{"name": "pebble", "bundle": str(PEBBLE), "position": [0.0, 0.0, 0.0172],
+                    "orientation": q},
+                   {"name": "blob", "bundle": str(BLOB)}],
+        "force": {"resolution": 24},
+        "friction": {"enabled": True, "mu_static": 0.3, "mu_dynamic": 0.2},
+        "device": {"type": "scripted", "trajectory": str(traj), "max_force": 8.0},
+        "trace": {"path": str(tmp_path / f"{name}.trace.csv")},
+    }
+    path = tmp_path / f"{name}.toml"
+    path.write_text(S.scene_toml(tables))
+    return path
+
+
+def trace_without_timings(path) -> list[list[str]]:
+    import trace as T
+    timing = {c for c, unit, _, _ in T.spec_table(T.TRACE_SECTION) if unit == "us"}
+    lines = [ln for ln in path.read_text().splitlines() if not ln.startswith("#")]
+    header = lines[0].split(",")
+    keep = [i for i, c in enumerate(header) if c not in timing]
+    return [[row.split(",")[i] for i in keep] for row in lines]
+
+
+def test_lockstep_session_equals_hrt_run(tmp_path):
+    """The same scene through hrt.Runner and `hrt run --lockstep`: the same trace, bit for
+    bit but the wall-clock timing columns, and the frames as arrays equal the trace's."""
+    scene = session_scene(tmp_path, "slide")
+    cli_trace, py_trace = tmp_path / "cli.csv", tmp_path / "py.csv"
+    r = subprocess.run([hrt_binary(), "run", str(scene), "--lockstep", "--trace", str(cli_trace), "--json"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stdout)
+    run = hrt.Runner(str(scene), trace=str(py_trace))
+    first = run.step()
+    assert first is not None and first["probe"].shape == (7,)
+    run.run()
+    assert run.done and run.step() is None
+    assert trace_without_timings(py_trace) == trace_without_timings(cli_trace)
+    frames = run.frames
+    assert len(frames["t"]) == summary["frames"] and max(frames["patches"]) == summary["simulation"]["max_patches"]
+    assert max(frames["patches"]) >= 1, "the scene must make contact"
+    assert run.device_loop["ticks"] == summary["device_loop"]["ticks"]
+    table = trace_without_timings(cli_trace)
+    ti = table[0].index("t")
+    t_cli = [float(row[ti]) for row in table[1:]]
+    assert frames["t"].tolist() == t_cli
+
+
+def test_runner_errors(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[run]\nduration = -1\n")
+    with pytest.raises(hrt.SceneFileError, match="bad.toml"):
+        hrt.Runner(str(bad))
+    scene = session_scene(tmp_path, "errors")
+    with pytest.raises(hrt.SceneFileError):
+        hrt.Runner(str(scene), trace=str(scene))  # an output may never overwrite an input
+    with pytest.raises(hrt.SceneFileError, match="--duration"):
+        hrt.Runner(str(scene), duration=-2.0)

@@ -1,9 +1,10 @@
 // `hrt run SCENE.toml [--duration S] [--lockstep | --realtime] [--sched-fifo]
 //  [--backend cpu|gl|auto] [--trace PATH] [--device-log PATH] [--json] [--quiet]`
 //
-// A haptic session (issue 9): loads the scene file (docs/scene-format.md),
-// its bundles and trajectories, opens the device, then runs the simulation
-// (hrt::Session) against the device loop (hrt::DeviceLoop):
+// A haptic session: loads the scene file (docs/scene-format.md), then
+// hrt::Runner (hrt/runner.h) loads its bundles and trajectories, opens the
+// device and runs the simulation (hrt::Session) against the device loop
+// (hrt::DeviceLoop):
 //   lockstep  one thread, a ManualClock: every device period one tick(), and
 //             every sim_every periods one simulation frame of h = sim_every x
 //             period; every trace column but the wall-clock *_us timings
@@ -42,6 +43,7 @@
 #include "hrt/device_loop.h"
 #include "hrt/run_config.h"
 #include "hrt/scene.h"
+#include "hrt/runner.h"
 #include "hrt/session.h"
 #include "scene_cli.h"
 
@@ -50,17 +52,6 @@ namespace {
 
 std::atomic<bool> g_stop{false};
 extern "C" void on_signal(int) { g_stop.store(true); }
-
-// Session time: the monotonic clock since the start of the run.
-class SessionClock : public hrt::Clock {
- public:
-  SessionClock() : t0_(base_.now()) {}
-  double now() const noexcept override { return base_.now() - t0_; }
-
- private:
-  hrt::SteadyClock base_;
-  double t0_;
-};
 
 struct RunFlags {
   std::string scene;
@@ -84,52 +75,6 @@ double percentile(std::vector<double> v, double q) {
   const size_t i = std::min(v.size() - 1, static_cast<size_t>(std::ceil(q * static_cast<double>(v.size())) - 1));
   return v[i];
 }
-
-std::unique_ptr<hrt::Device> make_device(const hrt::RunConfig& cfg) {
-  const hrt::DeviceConfig& d = cfg.device;
-  if (d.type == "scripted") {
-    hrt::Trajectory tr;
-    try {
-      tr = hrt::Trajectory::load_csv(d.trajectory, d.trajectory_prefix);
-    } catch (const hrt::TrajectoryError& e) {
-      throw Exit(kScene, std::string("error: ") + e.what());
-    }
-    return std::make_unique<hrt::ScriptedDevice>(std::move(tr), d.info);
-  }
-  if (d.type == "udp") return std::make_unique<hrt::UdpDevice>(d.udp, d.info);
-  if (d.type == "plugin") return std::make_unique<hrt::PluginDevice>(d.plugin, d.plugin_config);
-  throw Exit(kScene, "error: " + cfg.file + ": device.type: unknown device type '" + d.type + "'");
-}
-
-// A plugin reports its own limits; the scene file may override them.
-hrt::DeviceInfo effective_info(const hrt::RunConfig& cfg, const hrt::Device& dev) {
-  hrt::DeviceInfo info = dev.info();
-  const hrt::DeviceConfig& d = cfg.device;
-  if (d.type != "plugin") return d.info;
-  if (d.max_force_set) info.max_force = d.info.max_force;
-  if (d.max_torque_set) info.max_torque = d.info.max_torque;
-  if (d.max_stiffness_set) info.max_stiffness = d.info.max_stiffness;
-  if (d.max_angular_stiffness_set) info.max_angular_stiffness = d.info.max_angular_stiffness;
-  if (d.dof_actuated_set) info.dof_actuated = d.info.dof_actuated;
-  return info;
-}
-
-// The device with the scene's limits applied (a plugin's own figures
-// overridden where the file says so).
-class LimitedDevice : public hrt::Device {
- public:
-  LimitedDevice(hrt::Device& inner, hrt::DeviceInfo info) : inner_(inner), info_(std::move(info)) {}
-  const hrt::DeviceInfo& info() const override { return info_; }
-  void open() override {}
-  void close() override {}
-  bool read(double t, hrt::DeviceSample& s) noexcept override { return inner_.read(t, s); }
-  void write(double t, const hrt::Vec6& w) noexcept override { inner_.write(t, w); }
-  void publish_poses(double t, const hrt::Pose* p, int n) noexcept override { inner_.publish_poses(t, p, n); }
-
- private:
-  hrt::Device& inner_;
-  hrt::DeviceInfo info_;
-};
 
 int run(const RunFlags& f) {
   hrt::RunConfig cfg;
@@ -185,72 +130,46 @@ int run(const RunFlags& f) {
   if (!hrt::parse_backend_choice(cfg.backend, backend_choice))  // both readers checked it already
     throw Exit(kUsage, backend_source + ": not a backend (cpu, gl, auto)");
 
-  // Bundles, the scene, trajectories of kinematic objects.
-  std::vector<hrt::Model> models;
-  models.reserve(cfg.objects.size());
-  for (const hrt::ObjectConfig& o : cfg.objects) models.push_back(hrt::load_bundle(o.bundle));
-  std::vector<const hrt::Model*> ptrs;
-  for (const hrt::Model& m : models) ptrs.push_back(&m);
-  std::unique_ptr<hrt::Scene> scene;
+  // Bundles, the scene, trajectories of kinematic objects (hrt::Runner).
+  std::unique_ptr<hrt::Runner> runner;
   try {
-    scene = std::make_unique<hrt::Scene>(ptrs, cfg.scene);
+    runner = std::make_unique<hrt::Runner>(cfg);
+  } catch (const hrt::TrajectoryError& e) {
+    throw Exit(kScene, std::string("error: ") + e.what());
   } catch (const std::invalid_argument& e) {
     throw Exit(kScene, "error: " + cfg.file + ": " + e.what());
   }
+  std::vector<const hrt::Model*> ptrs;
+  for (const hrt::Model& m : runner->models()) ptrs.push_back(&m);
   // The depth backend for the scene's models, before the device is opened
-  // (a GL failure, exit 7, then leaves no port bound). Declared before the
-  // session, which points at it and must be destroyed first.
+  // (a GL failure, exit 7, then leaves no port bound). The session inside
+  // the runner points at it: runner_reset ends the runner first.
   hrt::gl::GlDepthOptions gl_options;
   gl_options.search = cfg.gl_search == "occlusion" ? hrt::gl::MaxSearch::occlusion : hrt::gl::MaxSearch::compute;
   gl_options.occlusion_steps = cfg.occlusion_steps;
   const CliBackend backend =
       select_depth_backend(backend_choice, backend_source, gl_options, ptrs, cfg.scene, !f.quiet);
-  std::vector<hrt::Trajectory> trajectories(cfg.objects.size());
-  for (size_t b = 1; b < cfg.objects.size(); ++b) {
-    if (cfg.objects[b].trajectory.empty()) continue;
-    try {
-      trajectories[b] = hrt::Trajectory::load_csv(cfg.objects[b].trajectory);
-    } catch (const hrt::TrajectoryError& e) {
-      throw Exit(kScene, std::string("error: ") + e.what());
-    }
-  }
+  struct RunnerReset {  // the session (inside the runner) goes before the backend it points at
+    std::unique_ptr<hrt::Runner>& r;
+    ~RunnerReset() { r.reset(); }
+  } runner_reset{runner};
 
-  // The device and its limits.
-  std::unique_ptr<hrt::Device> raw;
+  // The device and its limits, the session and the device loop.
   try {
-    raw = make_device(cfg);
-    raw->open();
+    runner->open();
+  } catch (const hrt::TrajectoryError& e) {
+    throw Exit(kScene, std::string("error: ") + e.what());
   } catch (const hrt::DeviceError& e) {
     throw Exit(kDevice, std::string("error: ") + e.what());
-  }
-  struct Closer {
-    hrt::Device* d;
-    ~Closer() { if (d) d->close(); }
-  } closer{raw.get()};
-  const hrt::DeviceInfo info = effective_info(cfg, *raw);
-  try {
-    hrt::check_device_limits(info, cfg.device.type == "plugin" ? "plugin " + cfg.device.plugin : cfg.file);
-  } catch (const hrt::DeviceError& e) {
-    throw Exit(kDevice, std::string("error: ") + e.what());
-  }
-  LimitedDevice device(*raw, info);
-
-  std::vector<hrt::Pose> initial;
-  for (const hrt::ObjectConfig& o : cfg.objects) initial.push_back(o.pose);
-  hrt::SessionOptions so = cfg.session;
-  so.max_device_stiffness = info.max_stiffness;
-  so.max_device_angular_stiffness = info.max_angular_stiffness;
-  if (cfg.coupling_from_device)
-    so.coupling = hrt::default_coupling(info, hrt::RigidBody::from_model(models[0], so.density));
-  std::unique_ptr<hrt::Session> session;
-  try {
-    session = std::make_unique<hrt::Session>(*scene, so, initial);
   } catch (const std::invalid_argument& e) {
     throw Exit(kScene, "error: " + cfg.file + ": " + e.what());
   }
-  for (size_t b = 1; b < cfg.objects.size(); ++b)
-    if (!trajectories[b].empty()) session->set_trajectory(static_cast<int>(b), &trajectories[b]);
-  session->set_depth_backend(backend.for_state());
+  runner->set_depth_backend(backend.for_state());
+  hrt::Device* raw = &runner->device();
+  const hrt::DeviceInfo& info = runner->device_info();
+  const hrt::Session* session = &runner->session();
+  const hrt::Scene* scene = &runner->scene();
+  const hrt::DeviceLoop& loop = runner->loop();
 
   hrt::TraceWriter trace;
   try {
@@ -263,22 +182,14 @@ int run(const RunFlags& f) {
   std::signal(SIGINT, on_signal);
   std::signal(SIGTERM, on_signal);
 
-  hrt::ManualClock manual;
-  SessionClock wall;
-  const hrt::Clock& clock = cfg.lockstep ? static_cast<const hrt::Clock&>(manual) : wall;
-  const size_t ticks_total = static_cast<size_t>(std::llround(cfg.duration / cfg.loop.period));
-  // Period errors for the jitter summary: one per tick, at most kMaxJitterSamples.
-  hrt::DeviceLoop loop(device, cfg.loop, clock, cfg.lockstep ? 0 : std::min(ticks_total + 1024, hrt::kMaxJitterSamples));
-
-  std::vector<double> sim_periods;
-  sim_periods.reserve(cfg.lockstep ? 1 : 1 << 20);
+  const size_t ticks_total = runner->ticks_total();
+  const std::vector<double>& sim_periods = runner->frame_periods();
   uint64_t frames = 0, max_patches = 0, refused = 0, fading = 0;
   double frame_us_sum = 0;
   std::vector<double> frame_us;
   frame_us.reserve(1 << 16);
   std::vector<double> gl_total_us;  // the GL backend's total per frame with patches
   if (backend.gl) gl_total_us.reserve(1 << 16);
-  hrt::DeviceTarget tgt;
   const auto wall0 = std::chrono::steady_clock::now();
   std::string trace_error;
   auto record = [&](const hrt::SessionFrame& fr) {
@@ -294,79 +205,35 @@ int run(const RunFlags& f) {
       gl_total_us.push_back(backend.gl->stats().total_us);
     if (trace.is_open() && trace_error.empty()) {
       try {
-        trace.row(hrt::TraceRow{&fr, &tgt});
+        trace.row(hrt::TraceRow{&fr, &runner->target()});
       } catch (const std::runtime_error& e) {
         trace_error = e.what();
       }
     }
+    return true;
   };
 
   // A backend that refuses the scene's options (std::invalid_argument from
   // DepthBackend::evaluate) or fails on the GPU (GlError) stops the session
-  // as Ctrl-C does (the device ramps to zero), then ends with one line.
+  // as Ctrl-C does (the device ramps to zero), then ends with one line. A
+  // device that failed for good (a plugin call past its deadline) ends the
+  // session the same way, then with exit 5 and its one line.
   std::string step_error;
   int step_error_code = kOk;
-  auto step = [&](double t, double h, const hrt::Pose& target) -> const hrt::SessionFrame* {
-    try {
-      return &session->step(t, h, target);
-    } catch (const std::invalid_argument& e) {
-      if (!backend.gl) throw;  // the CPU code inline never throws it: a bug
-      step_error = "error: " + backend_source + ": the " + backend.name() +
-                   " backend refused the scene's options: " + e.what();
-      step_error_code = backend_from_file ? kScene : kUsage;
-    } catch (const hrt::gl::GlError& e) {
-      step_error = "error: " + backend_source + ": " + e.what();
-      step_error_code = kGl;
-    }
-    return nullptr;
-  };
-
-  // A device that failed for good (a plugin call past its deadline) ends
-  // the session as Ctrl-C does, then with exit 5 and its one line.
-  std::string device_fault;
-  auto faulted = [&]() {
-    if (device_fault.empty()) device_fault = raw->fault();
-    return !device_fault.empty();
-  };
-  const int every = std::max(1, cfg.sim_every);
-  if (cfg.lockstep) {
-    for (size_t i = 0; i <= ticks_total && !g_stop.load() && !faulted(); ++i) {
-      const double t = static_cast<double>(i) * cfg.loop.period;
-      manual.set(t);
-      loop.tick();
-      if (i % static_cast<size_t>(every) != 0) continue;
-      if (!loop.target(tgt)) continue;
-      const hrt::SessionFrame* fr = step(t, every * cfg.loop.period, tgt.target);
-      if (!fr) break;
-      loop.publish(session->command());
-      record(*fr);
-    }
-  } else {
-    loop.start();
-    double t_prev = -1;
-    while (!g_stop.load() && !faulted()) {
-      const double t = clock.now();
-      if (t >= cfg.duration) break;
-      if (!loop.target(tgt)) {
-        std::this_thread::sleep_for(std::chrono::microseconds(200));
-        continue;
-      }
-      const double h = t_prev < 0 ? cfg.loop.period : std::min(cfg.max_step, std::max(1e-6, t - t_prev));
-      if (t_prev >= 0 && sim_periods.size() < sim_periods.capacity()) sim_periods.push_back(t - t_prev);
-      t_prev = t;
-      const hrt::SessionFrame* fr = step(t, h, tgt.target);
-      if (!fr) break;
-      loop.publish(session->command());
-      record(*fr);
-      // Poses for a visual display: the device forwards them at its own
-      // display rate (UdpDevice: [device] display_rate), others ignore them.
-      device.publish_poses(t, session->state().poses.data(), scene->size());
-    }
-    loop.stop();
+  try {
+    runner->run(record, &g_stop);
+  } catch (const std::invalid_argument& e) {
+    if (!backend.gl) throw;  // the CPU code inline never throws it: a bug
+    step_error = "error: " + backend_source + ": the " + backend.name() +
+                 " backend refused the scene's options: " + e.what();
+    step_error_code = backend_from_file ? kScene : kUsage;
+  } catch (const hrt::gl::GlError& e) {
+    step_error = "error: " + backend_source + ": " + e.what();
+    step_error_code = kGl;
   }
   const double wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
   const bool interrupted = g_stop.load();
-  if (device_fault.empty()) device_fault = raw->fault();
+  const std::string device_fault = raw->fault();
   std::signal(SIGINT, SIG_DFL);
   std::signal(SIGTERM, SIG_DFL);
   // No trace of a session that did not run its scene (the writer's
@@ -408,6 +275,7 @@ int run(const RunFlags& f) {
                  static_cast<unsigned long long>(trace.bytes()), static_cast<unsigned long long>(cfg.trace.max_bytes));
 
   // Summary.
+  const int every = std::max(1, cfg.sim_every);
   const hrt::DeviceLoopStats& st = loop.stats();
   const hrt::State& state = session->state();
   nlohmann::json j;
@@ -456,7 +324,7 @@ int run(const RunFlags& f) {
                    {"undersampled_patches", state.warnings.depth.undersampled_patches},
                    {"deep_fallbacks", state.warnings.deep_fallbacks},
                    {"deep_fallback_patches", state.warnings.deep_fallback_patches}};
-  if (auto* udp = dynamic_cast<hrt::UdpDevice*>(raw.get())) {
+  if (auto* udp = dynamic_cast<hrt::UdpDevice*>(raw)) {
     const hrt::UdpCounters c = udp->counters();
     j["udp"] = {{"port", udp->bound_port()}, {"received", c.received}, {"accepted", c.accepted},
                 {"bad_size", c.bad_size}, {"bad_magic", c.bad_magic}, {"bad_version", c.bad_version},

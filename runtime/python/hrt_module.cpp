@@ -14,6 +14,7 @@
 #include <nanobind/stl/vector.h>
 
 #include "hrt/hrt.h"
+#include "hrt/runner.h"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -132,6 +133,57 @@ nb::dict result(const PyScene& s) {
   return out;
 }
 
+void pose7(const hrt::Pose& p, double* out) {
+  out[0] = p.position.x(), out[1] = p.position.y(), out[2] = p.position.z();
+  out[3] = p.rotation.x(), out[4] = p.rotation.y(), out[5] = p.rotation.z(), out[6] = p.rotation.w();
+}
+
+// A scene file's session in lockstep (hrt::Runner), with its trace written
+// by the same writer as `hrt run`'s and its frames collected as arrays.
+struct PyRunner {
+  std::unique_ptr<hrt::Runner> runner;
+  std::unique_ptr<hrt::TraceWriter> trace;
+  bool finished = false;
+  // Per frame: t, probe pose (7), target pose (7), contact / coupling /
+  // device wrenches (6 each), patches.
+  std::vector<double> t, probe, target, contact, coupling, device;
+  std::vector<int64_t> patches;
+
+  void record(const hrt::SessionFrame& fr) {
+    t.push_back(fr.t);
+    double p[7];
+    pose7(fr.probe, p);
+    probe.insert(probe.end(), p, p + 7);
+    pose7(fr.target, p);
+    target.insert(target.end(), p, p + 7);
+    contact.insert(contact.end(), fr.contact.data(), fr.contact.data() + 6);
+    coupling.insert(coupling.end(), fr.coupling.data(), fr.coupling.data() + 6);
+    device.insert(device.end(), fr.device.data(), fr.device.data() + 6);
+    patches.push_back(fr.patches);
+    if (trace) trace->row(hrt::TraceRow{&fr, &runner->target()});
+  }
+  void finish() {
+    if (finished) return;
+    finished = true;
+    if (trace) trace->close();  // renames the .partial file into place
+  }
+  nb::dict frame_dict(const hrt::SessionFrame& fr) const {
+    double p[7];
+    nb::dict d;
+    d["t"] = fr.t;
+    d["frame"] = fr.frame;
+    pose7(fr.probe, p);
+    d["probe"] = array(p, {7});
+    pose7(fr.target, p);
+    d["target"] = array(p, {7});
+    d["contact"] = array(fr.contact.data(), {6});
+    d["coupling"] = array(fr.coupling.data(), {6});
+    d["device"] = array(fr.device.data(), {6});
+    d["patches"] = fr.patches;
+    return d;
+  }
+};
+
 }  // namespace
 
 NB_MODULE(_hrt, m) {
@@ -145,9 +197,21 @@ NB_MODULE(_hrt, m) {
   // Python package (hrt/__init__.py parses nothing: it is passed through).
   static nb::object bundle_error = nb::borrow(PyErr_NewException("hrt.BundleError", PyExc_ValueError, nullptr));
   m.attr("BundleError") = bundle_error;
+  static nb::object scene_error = nb::borrow(PyErr_NewException("hrt.SceneFileError", PyExc_ValueError, nullptr));
+  m.attr("SceneFileError") = scene_error;
+  static nb::object device_error = nb::borrow(PyErr_NewException("hrt.DeviceError", PyExc_RuntimeError, nullptr));
+  m.attr("DeviceError") = device_error;
   nb::register_exception_translator([](const std::exception_ptr& p, void*) {
     try {
       std::rethrow_exception(p);
+    } catch (const hrt::SceneFileError& e) {
+      PyErr_SetString(scene_error.ptr(), e.what());
+    } catch (const hrt::TrajectoryError& e) {
+      PyErr_SetString(scene_error.ptr(), e.what());
+    } catch (const hrt::OutputOverwritesInput& e) {
+      PyErr_SetString(scene_error.ptr(), e.what());
+    } catch (const hrt::DeviceError& e) {
+      PyErr_SetString(device_error.ptr(), e.what());
     } catch (const hrt::BundleError& e) {
       nb::object err = bundle_error(e.what());
       err.attr("error_class") = hrt::to_string(e.error_class());
@@ -234,4 +298,88 @@ NB_MODULE(_hrt, m) {
              if (b < 1 || b >= static_cast<int>(s.models.size())) throw nb::index_error("object index out of range");
              return s.scene->tolerance(b);
            }, "b"_a, "The pair tolerance of object b >= 1 against the probe (m).");
+
+  nb::class_<PyRunner>(m, "Runner",
+                       "A scene file's haptic session (docs/scene-format.md) in lockstep: the scripted device,\n"
+                       "the device loop and the simulation of `hrt run --lockstep`, frame by frame.")
+      .def("__init__", [](PyRunner* self, const std::string& scene, nb::object duration, const std::string& trace) {
+             hrt::RunConfig cfg = hrt::load_run_config(scene);
+             hrt::RunOverrides o;
+             o.lockstep = true;
+             if (!duration.is_none()) o.duration = nb::cast<double>(duration);
+             o.trace = trace;
+             hrt::apply_overrides(cfg, o);
+             hrt::check_run_outputs(cfg);
+             if (cfg.device.type != "scripted")
+               throw std::invalid_argument(cfg.file + ": lockstep needs a scripted device (device.type = \"" +
+                                           cfg.device.type + "\")");
+             auto runner = std::make_unique<hrt::Runner>(cfg);
+             runner->open();
+             std::unique_ptr<hrt::TraceWriter> writer;
+             if (!runner->config().trace.path.empty()) {
+               writer = std::make_unique<hrt::TraceWriter>();
+               writer->open(runner->config().trace.path, runner->config());
+             }
+             new (self) PyRunner();
+             self->runner = std::move(runner);
+             self->trace = std::move(writer);
+           },
+           "scene"_a, "duration"_a = nb::none(), "trace"_a = "",
+           "Loads the scene file (its bundles, trajectories and scripted device) and opens the session.\n"
+           "duration (s) and trace (a path) override the file's, as `hrt run --duration --trace` do.\n"
+           "Raises hrt.SceneFileError, hrt.BundleError, hrt.DeviceError or ValueError.")
+      .def("step", [](PyRunner& r) -> nb::object {
+             if (r.finished) return nb::none();
+             const hrt::SessionFrame* fr = nullptr;
+             {
+               nb::gil_scoped_release release;
+               fr = r.runner->step();
+             }
+             if (!fr) {
+               r.finish();
+               return nb::none();
+             }
+             r.record(*fr);
+             return r.frame_dict(*fr);
+           },
+           "Runs the device loop to the next simulation frame and returns it (t, frame, probe and target\n"
+           "poses (7,), contact, coupling and device wrenches (6,), patches), or None at the end.")
+      .def("run", [](PyRunner& r) {
+             {
+               nb::gil_scoped_release release;
+               while (!r.finished) {
+                 const hrt::SessionFrame* fr = r.runner->step();
+                 if (!fr) break;
+                 r.record(*fr);
+               }
+             }
+             r.finish();
+           }, "Runs the rest of the session (and closes its trace).")
+      .def_prop_ro("frames", [](const PyRunner& r) {
+             const size_t f = r.t.size();
+             nb::dict d;
+             d["t"] = array(r.t.data(), {f});
+             d["probe"] = array(r.probe.data(), {f, 7});
+             d["target"] = array(r.target.data(), {f, 7});
+             d["contact"] = array(r.contact.data(), {f, 6});
+             d["coupling"] = array(r.coupling.data(), {f, 6});
+             d["device"] = array(r.device.data(), {f, 6});
+             d["patches"] = nb::cast(r.patches);
+             return d;
+           },
+           "Every frame so far as arrays: t (F,), probe and target (F, 7) poses, contact, coupling and\n"
+           "device (F, 6) wrenches (torques about the probe's centre of mass), patches (F,).")
+      .def_prop_ro("done", [](const PyRunner& r) { return r.finished; }, "True once the session has run.")
+      .def_prop_ro("device_loop", [](const PyRunner& r) {
+             const hrt::DeviceLoopStats& st = r.runner->loop().stats();
+             nb::dict d;
+             d["ticks"] = st.ticks;
+             d["force_clamps"] = st.force_clamps;
+             d["torque_clamps"] = st.torque_clamps;
+             d["rate_limited"] = st.rate_limited;
+             d["non_finite"] = st.non_finite;
+             d["watchdog_events"] = st.watchdog_events;
+             d["commands"] = st.commands;
+             return d;
+           }, "The device loop's counters (ticks, clamps, watchdog events, ...), as `hrt run --json` prints.");
 }

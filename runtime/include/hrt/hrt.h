@@ -25,7 +25,8 @@
 #include "hrt/trajectory.h"   // scripted device paths
 #include "hrt/device.h"       // device kinds
 #include "hrt/device_loop.h"  // the 1 kHz device loop and its per-tick bounds
-#include "hrt/session.h"      // a simulation session (lockstep or real time)
+#include "hrt/session.h"      // a simulation session (probe dynamics, coupling, materials)
+#include "hrt/runner.h"       // a scene file's session against its device, as `hrt run` runs it
 #include "hrt/run_config.h"   // scene files of `hrt run` (TOML)
 #include "hrt/files.h"
 #include "hrt/gl_depth.h"     // the GL depth backend (EGL, headless)
