@@ -227,3 +227,28 @@ def test_runner_errors(tmp_path):
         hrt.Runner(str(scene), trace=str(scene))  # an output may never overwrite an input
     with pytest.raises(hrt.SceneFileError, match="--duration"):
         hrt.Runner(str(scene), duration=-2.0)
+
+
+def test_gl_backend_equals_cli(models):
+    """backend='gl' (headless EGL; llvmpipe here) gives `hrt query --backend gl`'s numbers;
+    two GL scenes live side by side, and ending one leaves the other working."""
+    poses = np.array([POSES_A[1], IDENTITY])
+    gl = hrt.Scene(list(models), backend="gl")
+    assert gl.backend == "gl" and "gl" in gl.backend_message
+    want = cli_query(POSES_A[1], "--backend", "gl")
+    got = gl.query(poses)
+    assert got["force"].tolist() == want["force"] and got["torque"].tolist() == want["torque"]
+    assert got["patches"]["delta"].tolist() == [c["delta"] for c in want["contacts"]]
+    other = hrt.Scene(list(models), backend="gl", gl_search="occlusion")
+    assert other.query(poses)["patches"]["delta"].shape == (1,)
+    del other
+    gl.reset()
+    assert gl.query(poses)["force"].tolist() == want["force"]
+    # auto keeps to the cpu on a software renderer, and always with the shortcut.
+    assert hrt.Scene(list(models), backend="auto", shortcut=True).backend == "cpu"
+    with pytest.raises(ValueError, match="shortcut"):
+        hrt.Scene(list(models), backend="gl", shortcut=True)
+    with pytest.raises(ValueError, match="backend"):
+        hrt.Scene(list(models), backend="vulkan")
+    with pytest.raises(ValueError, match="gl_search"):
+        hrt.Scene(list(models), backend="gl", gl_search="binary")

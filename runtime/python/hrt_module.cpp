@@ -49,7 +49,23 @@ hrt::HeightMode height_mode(const std::string& s) {
 struct PyScene {
   std::vector<std::shared_ptr<hrt::Model>> models;
   std::unique_ptr<hrt::Scene> scene;
+  // The depth backend (GL: its context and backend) before the State that
+  // points at it, so that the State goes first.
+  hrt::gl::BackendSelection selection;
+  hrt::DepthBackend* backend = nullptr;  // null: the CPU code inline (as `hrt query`)
   std::unique_ptr<hrt::State> state;
+
+  // Several GL scenes have a context each: a GL scene makes its own current
+  // on the calling thread before it draws, and before its GL objects go.
+  void make_current() {
+    if (selection.context) selection.context->make_current();
+  }
+  ~PyScene() {
+    try {
+      make_current();
+    } catch (...) {  // a destructor must not throw; the driver then frees the objects with the context
+    }
+  }
 };
 
 // Poses as an (objects, 7) array: x, y, z, qx, qy, qz, qw per object.
@@ -201,6 +217,8 @@ NB_MODULE(_hrt, m) {
   m.attr("SceneFileError") = scene_error;
   static nb::object device_error = nb::borrow(PyErr_NewException("hrt.DeviceError", PyExc_RuntimeError, nullptr));
   m.attr("DeviceError") = device_error;
+  static nb::object gl_error = nb::borrow(PyErr_NewException("hrt.GlError", PyExc_RuntimeError, nullptr));
+  m.attr("GlError") = gl_error;
   nb::register_exception_translator([](const std::exception_ptr& p, void*) {
     try {
       std::rethrow_exception(p);
@@ -212,6 +230,8 @@ NB_MODULE(_hrt, m) {
       PyErr_SetString(scene_error.ptr(), e.what());
     } catch (const hrt::DeviceError& e) {
       PyErr_SetString(device_error.ptr(), e.what());
+    } catch (const hrt::gl::GlError& e) {
+      PyErr_SetString(gl_error.ptr(), e.what());
     } catch (const hrt::BundleError& e) {
       nb::object err = bundle_error(e.what());
       err.attr("error_class") = hrt::to_string(e.error_class());
@@ -249,7 +269,8 @@ NB_MODULE(_hrt, m) {
                       "One query at a time per Scene (it owns the frame's scratch).")
       .def("__init__", [](PyScene* self, std::vector<std::shared_ptr<hrt::Model>> models, int resolution,
                           double stiffness, double lin_step, double ang_step, bool shortcut, const std::string& heights,
-                          double margin, int max_patches, int threads) {
+                          double margin, int max_patches, int threads, const std::string& backend,
+                          const std::string& gl_search) {
              // Everything is built first: an exception leaves *self unconstructed.
              for (const auto& p : models)
                if (!p) throw std::invalid_argument("a scene object is None");
@@ -265,21 +286,41 @@ NB_MODULE(_hrt, m) {
              o.threads = threads;
              std::vector<const hrt::Model*> objects;
              for (const auto& p : models) objects.push_back(p.get());
+             hrt::BackendChoice choice;
+             if (!hrt::parse_backend_choice(backend, choice))
+               throw std::invalid_argument("backend must be 'cpu', 'gl' or 'auto', got '" + backend + "'");
+             // As `hrt query --backend`: gl refuses what only the CPU implements; auto keeps to the cpu.
+             const bool cpu_only = o.force.shortcut || o.force.heights == hrt::HeightMode::mesh;
+             if (choice == hrt::BackendChoice::gl && cpu_only)
+               throw std::invalid_argument("backend 'gl' does not implement the Sec. 5.2 shortcut or heights 'mesh'; "
+                                           "use backend 'cpu'");
+             if (choice == hrt::BackendChoice::automatic && cpu_only) choice = hrt::BackendChoice::cpu;
+             hrt::gl::GlDepthOptions gl;
+             if (gl_search == "occlusion") gl.search = hrt::gl::MaxSearch::occlusion;
+             else if (gl_search != "compute")
+               throw std::invalid_argument("gl_search must be 'compute' or 'occlusion', got '" + gl_search + "'");
              auto scene = std::make_unique<hrt::Scene>(objects, o);
+             hrt::gl::BackendSelection selection = hrt::gl::select_backend(choice, objects, o, gl);
+             hrt::DepthBackend* chosen = dynamic_cast<hrt::gl::GlDepthBackend*>(selection.backend.get());
              auto state = std::make_unique<hrt::State>(*scene);
-             new (self) PyScene{std::move(models), std::move(scene), std::move(state)};
+             state->depth_backend = chosen;
+             new (self) PyScene{std::move(models), std::move(scene), std::move(selection), chosen, std::move(state)};
            },
            "models"_a, "resolution"_a = hrt::kDefaultResolution, "stiffness"_a = hrt::kDefaultStiffness,
            "lin_step"_a = 0.0, "ang_step"_a = 0.0, "shortcut"_a = false, "heights"_a = "surface",
-           "margin"_a = -1.0, "max_patches"_a = 32, "threads"_a = 1,
+           "margin"_a = -1.0, "max_patches"_a = 32, "threads"_a = 1, "backend"_a = "cpu",
+           "gl_search"_a = "compute",
            "models: [probe A, B, ...] from load_bundle (the same Model may appear twice). The options are\n"
            "`hrt query`'s: grid resolution N, stiffness k (N/m), finite-difference steps (0: automatic),\n"
            "the Sec. 5.2 shortcut, heights 'surface'|'coarse'|'mesh', collision margin (m, -1: automatic),\n"
-           "most patches per frame, threads (0: every hardware thread). Raises ValueError on bad options.")
+           "most patches per frame, threads (0: every hardware thread), the depth backend 'cpu', 'gl'\n"
+           "(headless OpenGL through EGL; hrt.GlError when none can be made) or 'auto', and the GL\n"
+           "backend's maximum search 'compute' or 'occlusion'. Raises ValueError on bad options.")
       .def("query", [](PyScene& s, nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> poses) {
              set_poses(s, poses);
              {
                nb::gil_scoped_release release;
+               s.make_current();
                hrt::frame(*s.scene, *s.state);
              }
              return result(s);
@@ -291,9 +332,16 @@ NB_MODULE(_hrt, m) {
            "Successive queries are successive frames of one session: patches keep their identity\n"
            "(id, u, texel size) from one query to the next, as in `hrt run`. A query after reset(),\n"
            "or the first, equals `hrt query --json` at the same poses, bit for bit.")
-      .def("reset", [](PyScene& s) { s.state = std::make_unique<hrt::State>(*s.scene); },
+      .def("reset", [](PyScene& s) {
+             s.state = std::make_unique<hrt::State>(*s.scene);
+             s.state->depth_backend = s.backend;
+           },
            "Forgets the previous frames (a fresh State): the next query is like a first one.")
       .def_prop_ro("size", [](const PyScene& s) { return s.models.size(); }, "Objects in the scene.")
+      .def_prop_ro("backend", [](const PyScene& s) { return std::string(s.backend ? s.backend->name() : "cpu"); },
+                   "The depth backend the queries run on: 'cpu' or 'gl'.")
+      .def_prop_ro("backend_message", [](const PyScene& s) { return s.selection.message; },
+                   "Which backend was chosen and why (one line, as `hrt query --backend` prints it).")
       .def("tolerance", [](const PyScene& s, int b) {
              if (b < 1 || b >= static_cast<int>(s.models.size())) throw nb::index_error("object index out of range");
              return s.scene->tolerance(b);

@@ -12,8 +12,8 @@ Units and conventions are the bundle format's (docs/bundle-format.md): metres, N
 radians; a pose is x, y, z, qx, qy, qz, qw of a bundle's object frame in the world; a
 patch's n points from the probe A into B and delta > 0 is overlap.
 """
-from ._hrt import (BUNDLE_FORMAT_MAJOR, BUNDLE_FORMAT_MINOR, BundleError, DeviceError, Model, Runner, Scene,
-                   SceneFileError, __version__, load_bundle)
+from ._hrt import (BUNDLE_FORMAT_MAJOR, BUNDLE_FORMAT_MINOR, BundleError, DeviceError, GlError, Model, Runner,
+                   Scene, SceneFileError, __version__, load_bundle)
 
-__all__ = ["BUNDLE_FORMAT_MAJOR", "BUNDLE_FORMAT_MINOR", "BundleError", "DeviceError", "Model", "Runner", "Scene",
-           "SceneFileError", "__version__", "load_bundle"]
+__all__ = ["BUNDLE_FORMAT_MAJOR", "BUNDLE_FORMAT_MINOR", "BundleError", "DeviceError", "GlError", "Model", "Runner",
+           "Scene", "SceneFileError", "__version__", "load_bundle"]

@@ -4,6 +4,8 @@
 
 #include <cstdlib>
 #include <cstring>
+#include <map>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -42,6 +44,27 @@ const char* str(GLenum name) {
   return s ? reinterpret_cast<const char*>(s) : "";
 }
 
+// EGL does not count eglInitialize calls: one eglTerminate ends every context
+// on the display, and the contexts of one process share it (one display per
+// EGL device, one surfaceless display). So the live Contexts per display are
+// counted, and a display is terminated only when none is left on it (several
+// scenes with the GL backend in one process: the Python module).
+std::mutex g_displays_mutex;
+std::map<EGLDisplay, int> g_display_contexts;
+
+void retain_display(EGLDisplay dpy) {
+  std::lock_guard<std::mutex> lock(g_displays_mutex);
+  ++g_display_contexts[dpy];
+}
+
+// Terminates `dpy` unless a live Context uses it; `drop`: one of them ends.
+void release_display(EGLDisplay dpy, bool drop = false) {
+  std::lock_guard<std::mutex> lock(g_displays_mutex);
+  auto it = g_display_contexts.find(dpy);
+  if (it != g_display_contexts.end() && drop && --it->second == 0) g_display_contexts.erase(it);
+  if (g_display_contexts.count(dpy) == 0) eglTerminate(dpy);
+}
+
 // Initializes `dpy`, makes a 4.5 core context current on it, fills `info`.
 // Returns the context, or nullptr with `why` set (the display is terminated).
 EGLContext try_display(EGLDisplay dpy, const char* platform, ContextInfo& info, std::string& why) {
@@ -52,7 +75,7 @@ EGLContext try_display(EGLDisplay dpy, const char* platform, ContextInfo& info, 
   }
   if (!eglBindAPI(EGL_OPENGL_API)) {
     why = std::string(platform) + ": no desktop OpenGL API (" + egl_error_name(eglGetError()) + ")";
-    eglTerminate(dpy);
+    release_display(dpy);
     return nullptr;
   }
   // No surface is ever drawn to (framebuffer objects only): any config with
@@ -64,7 +87,7 @@ EGLContext try_display(EGLDisplay dpy, const char* platform, ContextInfo& info, 
   const bool no_config = has_word(eglQueryString(dpy, EGL_EXTENSIONS), "EGL_KHR_no_config_context");
   if (n < 1 && !no_config) {
     why = std::string(platform) + ": no EGL config with OpenGL";
-    eglTerminate(dpy);
+    release_display(dpy);
     return nullptr;
   }
   const EGLint attr[] = {EGL_CONTEXT_MAJOR_VERSION, 4, EGL_CONTEXT_MINOR_VERSION, 5,
@@ -72,14 +95,14 @@ EGLContext try_display(EGLDisplay dpy, const char* platform, ContextInfo& info, 
   EGLContext ctx = eglCreateContext(dpy, n >= 1 ? cfg : EGL_NO_CONFIG_KHR, EGL_NO_CONTEXT, attr);
   if (ctx == EGL_NO_CONTEXT) {
     why = std::string(platform) + ": no OpenGL 4.5 core context (" + egl_error_name(eglGetError()) + ")";
-    eglTerminate(dpy);
+    release_display(dpy);
     return nullptr;
   }
   if (!eglMakeCurrent(dpy, EGL_NO_SURFACE, EGL_NO_SURFACE, ctx)) {
     why = std::string(platform) + ": the context cannot be made current without a surface (" +
           egl_error_name(eglGetError()) + ")";
     eglDestroyContext(dpy, ctx);
-    eglTerminate(dpy);
+    release_display(dpy);
     return nullptr;
   }
   info = ContextInfo{};
@@ -102,7 +125,7 @@ EGLContext try_display(EGLDisplay dpy, const char* platform, ContextInfo& info, 
     why = std::string(platform) + ": the context is OpenGL " + info.gl_version + ", 4.5 is needed";
     eglMakeCurrent(dpy, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
     eglDestroyContext(dpy, ctx);
-    eglTerminate(dpy);
+    release_display(dpy);
     return nullptr;
   }
   return ctx;
@@ -142,6 +165,7 @@ std::unique_ptr<Context> Context::create() {
           continue;
         }
         if (info.hardware || only == "device") {
+          retain_display(dpy);
           out->display_ = dpy;
           out->context_ = ctx;
           out->info_ = info;
@@ -150,7 +174,7 @@ std::unique_ptr<Context> Context::create() {
         tried.push_back("device " + std::to_string(i) + ": " + info.renderer + " is a software renderer");
         eglMakeCurrent(dpy, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
         eglDestroyContext(dpy, ctx);
-        eglTerminate(dpy);
+        release_display(dpy);
       }
     } else {
       tried.push_back("device: eglQueryDevicesEXT failed");
@@ -166,6 +190,7 @@ std::unique_ptr<Context> Context::create() {
       std::string why;
       ContextInfo info;
       if (EGLContext ctx = try_display(dpy, "surfaceless", info, why)) {
+        retain_display(dpy);
         out->display_ = dpy;
         out->context_ = ctx;
         out->info_ = info;
@@ -186,7 +211,7 @@ Context::~Context() {
   if (!dpy) return;
   eglMakeCurrent(dpy, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
   if (context_) eglDestroyContext(dpy, static_cast<EGLContext>(context_));
-  eglTerminate(dpy);
+  release_display(dpy, true);
 }
 
 void Context::make_current() {
