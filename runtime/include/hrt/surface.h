@@ -64,8 +64,11 @@ struct SurfaceMap {
   // as lookups clamp) is usable: all four texels filled (within atlas.gutter
   // of a covered texel, docs/bundle-format.md) and no edge of the quad longer
   // than kJumpTexels * texel_size. Lookups in an unusable quad return no
-  // point (the texel column stays uncovered by that lookup).
+  // point (the texel column stays uncovered by that lookup). Followed by
+  // kQuadOkPadding zero bytes: the vector kernels read a flag as the low byte
+  // of a 32-bit load (src/depth/resolve_simd.cpp).
   std::vector<uint8_t> quad_ok;
+  static constexpr size_t kQuadOkPadding = 3;
   double jump = 0.0;            // m: kJumpTexels * texel_size (0: no texel size known, no jump test)
   uint64_t cut_quads = 0;       // quads with a filled corner cut by the jump test (for reports)
   // Blocks of kQuadBlock x kQuadBlock quads (block (bi, bj) holds the quads

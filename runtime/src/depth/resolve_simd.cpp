@@ -44,7 +44,7 @@ class Lookup {
   explicit Lookup(const P& p)
       : rgba_(p.rgba), ok_(p.ok), lo_(hn::Set(dd_, -1e6)), hi_(hn::Set(dd_, 1e6)), one_i_(hn::Set(di_, 1)),
         wi_(hn::Set(di_, p.w)), wmax_(hn::Set(di_, p.w - 1)), hmax_(hn::Set(di_, p.h - 1)),
-        stride_(hn::Set(di_, p.stride)) {
+        stride_(hn::Set(di_, p.stride)), byte_(hn::Set(di_, 0xFF)) {
     for (int c = 0; c < 3; ++c)
       gx_[c] = hn::Set(df_, p.gx4[c]), gy_[c] = hn::Set(df_, p.gy4[c]), gn_[c] = hn::Set(df_, p.n4[c]);
   }
@@ -61,10 +61,11 @@ class Lookup {
     const VI ia = hn::Min(hn::Max(i0, zero), wmax_), ib = hn::Min(hn::Max(hn::Add(i0, one_i_), zero), wmax_);
     const VI ja = hn::Min(hn::Max(j0, zero), hmax_), jb = hn::Min(hn::Max(hn::Add(j0, one_i_), zero), hmax_);
     if (ok_) {
-      // Highway has no byte gather: the quad flags are read lane by lane.
-      hn::Store(hn::Add(hn::Mul(ja, wi_), ia), di_, idx_);
-      for (size_t l = 0; l < hn::Lanes(dd_); ++l) okv_[l] = ok_[idx_[l]] ? 1.0 : 0.0;
-      active = hn::And(active, hn::Ne(hn::Load(dd_, okv_), hn::Zero(dd_)));
+      // Highway has no byte gather: each quad flag is the low byte of a
+      // 32-bit gather at its byte offset (quad_ok is padded by
+      // SurfaceMap::kQuadOkPadding bytes for the last one; x86 is little-endian).
+      const VI word = hn::GatherOffset(di_, reinterpret_cast<const int32_t*>(ok_), hn::Add(hn::Mul(ja, wi_), ia));
+      active = hn::And(active, hn::Ne(hn::PromoteTo(dd_, hn::And(word, byte_)), hn::Zero(dd_)));
       if (hn::AllFalse(dd_, active)) return false;
     }
     const VI ra = hn::Mul(ja, stride_), rb = hn::Mul(jb, stride_);
@@ -96,10 +97,8 @@ class Lookup {
   const float* rgba_;
   const uint8_t* ok_;
   VD lo_, hi_;
-  VI one_i_, wi_, wmax_, hmax_, stride_;
+  VI one_i_, wi_, wmax_, hmax_, stride_, byte_;
   VF gx_[3], gy_[3], gn_[3];
-  HWY_ALIGN int32_t idx_[kMaxLanes];
-  HWY_ALIGN double okv_[kMaxLanes];
 };
 
 void ResolveAll(const ResolveArgs& A) {

@@ -694,7 +694,7 @@ GlDepthBackend::GlDepthBackend(Context& context, const std::vector<const Model*>
       glTextureSubImage2D(g.atlas, 0, 0, 0, W, H, GL_RGBA, GL_FLOAT, m->atlas.rgba.data());
     }
     g.ok = make_texture(GL_R8UI, W, H);
-    if (m->surface.ready && m->surface.quad_ok.size() == static_cast<size_t>(W) * H) {
+    if (m->surface.ready && m->surface.quad_ok.size() == static_cast<size_t>(W) * H + SurfaceMap::kQuadOkPadding) {
       glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
       glTextureSubImage2D(g.ok, 0, 0, 0, W, H, GL_RED_INTEGER, GL_UNSIGNED_BYTE, m->surface.quad_ok.data());
       glPixelStorei(GL_UNPACK_ALIGNMENT, 4);
