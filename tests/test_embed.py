@@ -161,3 +161,22 @@ def test_shared_library_application(tmp_path):
         r = subprocess.run(cmd, capture_output=True, text=True)
         assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     same_as_query(app / "embed")
+
+
+@pytest.mark.slow
+def test_build_without_gl(tmp_path):
+    """-DHRT_WITH_GL=OFF: no libepoxy; `--backend gl` is the one-line GL error (exit 7),
+    `--backend auto` keeps to the CPU with the same numbers."""
+    build = tmp_path / "nogl"
+    for cmd in (["cmake", "-S", str(REPO / "runtime"), "-B", str(build), "-DHRT_WITH_GL=OFF", "-DBUILD_TESTING=OFF"],
+                ["cmake", "--build", str(build), "-j", str(os.cpu_count() or 2), "--target", "hrt"]):
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    exe = build / "hrt"
+    assert "epoxy" not in subprocess.run(["ldd", str(exe)], capture_output=True, text=True).stdout
+    args = [str(PEBBLE), str(BLOB), "--pose-a", *POSES[0], "--pose-b", "0", "0", "0", "0", "0", "0", "1"]
+    r = subprocess.run([str(exe), "query", *args, "--backend", "gl"], capture_output=True, text=True)
+    assert r.returncode == 7 and "HRT_WITH_GL=OFF" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    r = subprocess.run([str(exe), "query", *args, "--backend", "auto", "--json"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["force"] == query(POSES[0])["force"]

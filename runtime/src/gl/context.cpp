@@ -133,11 +133,6 @@ EGLContext try_display(EGLDisplay dpy, const char* platform, ContextInfo& info, 
 
 }  // namespace
 
-bool is_software_renderer(const std::string& r) {
-  for (const char* s : {"llvmpipe", "softpipe", "SwiftShader", "Software Rasterizer"})
-    if (r.find(s) != std::string::npos) return true;
-  return false;
-}
 
 std::unique_ptr<Context> Context::create() {
   const char* forced = std::getenv("HRT_EGL_PLATFORM");

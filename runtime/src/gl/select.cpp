@@ -62,6 +62,13 @@ double median_us(DepthBackend& backend, const DepthJob* jobs, int count, const F
 
 }  // namespace
 
+// Here, not in context.cpp, so that a build without GL (src/gl/none) has it too.
+bool is_software_renderer(const std::string& r) {
+  for (const char* s : {"llvmpipe", "softpipe", "SwiftShader", "Software Rasterizer"})
+    if (r.find(s) != std::string::npos) return true;
+  return false;
+}
+
 BackendSelection select_backend(BackendChoice choice, const std::vector<const Model*>& models,
                                 const SceneOptions& scene_options, const GlDepthOptions& gl_options) {
   BackendSelection sel;
