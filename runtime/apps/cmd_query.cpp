@@ -128,9 +128,7 @@ Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOption
             {"lin_step", so.force.lin_step},
             {"ang_step", so.force.ang_step},
             {"shortcut", so.force.shortcut},
-            {"heights", so.force.heights == hrt::HeightMode::coarse ? "coarse"
-                       : so.force.heights == hrt::HeightMode::mesh ? "mesh"
-                                                                   : "surface"},
+            {"heights", hrt::to_string(so.force.heights)},
             {"margin", so.collision.margin},
             {"max_patches", so.cluster.max_patches},
             {"auto_resolution", so.cluster.auto_resolution},

@@ -166,9 +166,7 @@ struct SceneFlags {
     o.force.lin_step = lin_step;
     o.force.ang_step = ang_step;
     o.force.shortcut = shortcut;
-    o.force.heights = heights == "coarse" ? hrt::HeightMode::coarse
-                      : heights == "mesh" ? hrt::HeightMode::mesh
-                                          : hrt::HeightMode::surface;
+    hrt::parse_height_mode(heights, o.force.heights);  // checked by the option's IsMember
     o.collision.margin = margin;
     o.cluster.max_patches = max_patches;
     o.cluster.auto_resolution = auto_resolution;
@@ -222,20 +220,11 @@ inline CliBackend select_depth_backend(hrt::BackendChoice choice, const std::str
                                        const hrt::SceneOptions& options, bool announce) {
   CliBackend out;
   out.choice = choice;
-  hrt::BackendChoice effective = choice;
-  std::string note;
-  // The GL backend refuses the shortcut (gl_depth.h): auto keeps to the cpu
-  // instead of picking a backend whose first contact frame would fail. (gl
-  // with the shortcut is refused earlier, by the callers' checks.)
-  if (effective == hrt::BackendChoice::automatic && options.force.shortcut) {
-    effective = hrt::BackendChoice::cpu;
-    note = "backend: auto -> cpu (the Sec. 5.2 shortcut is implemented by the CPU backend only)";
-  } else if (effective == hrt::BackendChoice::automatic && options.force.heights == hrt::HeightMode::mesh) {
-    effective = hrt::BackendChoice::cpu;
-    note = "backend: auto -> cpu (heights = mesh is implemented by the CPU backend only)";
-  }
+  // gl with options only the CPU implements is refused earlier, by the
+  // callers' checks (with the flag or key to blame); auto keeps to the cpu
+  // for them inside select_backend.
   try {
-    out.selection = hrt::gl::select_backend(effective, models, options, gl_options);
+    out.selection = hrt::gl::select_backend(choice, models, options, gl_options);
   } catch (const hrt::gl::GlError& e) {
     std::string what = e.what();
     for (char& c : what)
@@ -243,7 +232,6 @@ inline CliBackend select_depth_backend(hrt::BackendChoice choice, const std::str
     throw Exit(kGl, "error: " + source + ": " + what);
   }
   out.gl = dynamic_cast<hrt::gl::GlDepthBackend*>(out.selection.backend.get());
-  if (!note.empty()) out.selection.message = note;
   if (announce && choice != hrt::BackendChoice::cpu) std::fprintf(stderr, "hrt: %s\n", out.selection.message.c_str());
   return out;
 }

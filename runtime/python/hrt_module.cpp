@@ -38,10 +38,10 @@ nb::ndarray<nb::numpy, double> array(const double* data, std::initializer_list<s
 nb::ndarray<nb::numpy, double> vec3(const hrt::Vec3& v) { return array(v.data(), {3}); }
 
 hrt::HeightMode height_mode(const std::string& s) {
-  if (s == "surface") return hrt::HeightMode::surface;
-  if (s == "coarse") return hrt::HeightMode::coarse;
-  if (s == "mesh") return hrt::HeightMode::mesh;
-  throw std::invalid_argument("heights must be 'surface', 'coarse' or 'mesh', got '" + s + "'");
+  hrt::HeightMode m;
+  if (!hrt::parse_height_mode(s, m))
+    throw std::invalid_argument("heights must be 'surface', 'coarse' or 'mesh', got '" + s + "'");
+  return m;
 }
 
 // A scene and its preallocated state, with the models kept alive: one query
@@ -289,12 +289,6 @@ NB_MODULE(_hrt, m) {
              hrt::BackendChoice choice;
              if (!hrt::parse_backend_choice(backend, choice))
                throw std::invalid_argument("backend must be 'cpu', 'gl' or 'auto', got '" + backend + "'");
-             // As `hrt query --backend`: gl refuses what only the CPU implements; auto keeps to the cpu.
-             const bool cpu_only = o.force.shortcut || o.force.heights == hrt::HeightMode::mesh;
-             if (choice == hrt::BackendChoice::gl && cpu_only)
-               throw std::invalid_argument("backend 'gl' does not implement the Sec. 5.2 shortcut or heights 'mesh'; "
-                                           "use backend 'cpu'");
-             if (choice == hrt::BackendChoice::automatic && cpu_only) choice = hrt::BackendChoice::cpu;
              hrt::gl::GlDepthOptions gl;
              if (gl_search == "occlusion") gl.search = hrt::gl::MaxSearch::occlusion;
              else if (gl_search != "compute")

@@ -35,6 +35,7 @@
 
 #include <cstdint>
 #include <limits>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -93,6 +94,11 @@ enum class HeightMode : int {
   // docs/bundle-format.md "Heights".
   mesh = 2,
 };
+
+// "surface", "coarse", "mesh" (the names of scene files, flags and JSON).
+const char* to_string(HeightMode mode);
+// The name -> mode; false for anything else.
+bool parse_height_mode(const std::string& name, HeightMode& out);
 
 // Lateral tolerance of the surface mode, as a fraction of the smaller of the
 // grid texel and the model's atlas texel: a converged f(q) projects within

@@ -1,5 +1,5 @@
-// The CPU backend behind hrt/depth_backend.h's interface, and the choice's
-// parser.
+// The CPU backend behind hrt/depth_backend.h's interface, and the parsers of
+// the backend choice and the heights mode.
 #include "hrt/depth_backend.h"
 
 namespace hrt {
@@ -16,6 +16,19 @@ bool parse_backend_choice(const std::string& text, BackendChoice& out) {
   else if (text == "auto") out = BackendChoice::automatic;
   else return false;
   return true;
+}
+
+const char* to_string(HeightMode mode) {
+  return mode == HeightMode::coarse ? "coarse" : mode == HeightMode::mesh ? "mesh" : "surface";
+}
+
+bool parse_height_mode(const std::string& name, HeightMode& out) {
+  for (HeightMode m : {HeightMode::surface, HeightMode::coarse, HeightMode::mesh})
+    if (name == to_string(m)) {
+      out = m;
+      return true;
+    }
+  return false;
 }
 
 }  // namespace hrt

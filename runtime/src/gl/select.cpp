@@ -6,6 +6,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <limits>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -72,6 +73,18 @@ bool is_software_renderer(const std::string& r) {
 BackendSelection select_backend(BackendChoice choice, const std::vector<const Model*>& models,
                                 const SceneOptions& scene_options, const GlDepthOptions& gl_options) {
   BackendSelection sel;
+  // Options only the CPU backend implements (GlDepthBackend::evaluate would
+  // refuse the first patch): gl is refused here, auto keeps to the cpu.
+  const char* cpu_only = scene_options.force.shortcut ? "the Sec. 5.2 shortcut"
+                         : scene_options.force.heights == HeightMode::mesh ? "heights = mesh"
+                                                                          : nullptr;
+  if (cpu_only && choice == BackendChoice::gl)
+    throw std::invalid_argument(std::string("the gl backend does not implement ") + cpu_only + "; use the cpu backend");
+  if (cpu_only && choice == BackendChoice::automatic) {
+    sel.backend = std::make_unique<CpuDepthBackend>();
+    sel.message = std::string("backend: auto -> cpu (") + cpu_only + " is implemented by the CPU backend only)";
+    return sel;
+  }
   if (choice == BackendChoice::cpu) {
     sel.backend = std::make_unique<CpuDepthBackend>();
     sel.message = "backend: cpu";

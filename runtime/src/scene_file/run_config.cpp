@@ -630,7 +630,7 @@ RunConfig load_run_config(const std::string& path) {
       s.fail("shortcut", "the Sec. 5.2 shortcut is implemented by the CPU backend only, and run.backend is \"gl\"");
     {
       const std::string h = s.choice("heights", "surface", {"surface", "coarse", "mesh"});
-      f.heights = h == "coarse" ? HeightMode::coarse : h == "mesh" ? HeightMode::mesh : HeightMode::surface;
+      parse_height_mode(h, f.heights);  // one of the three, checked by choice()
     }
     if (f.heights == HeightMode::mesh && c.backend == "gl")
       s.fail("heights", "heights = \"mesh\" is implemented by the CPU backend only, and run.backend is \"gl\"");
