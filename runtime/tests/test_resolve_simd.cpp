@@ -128,6 +128,64 @@ TEST(ResolveSimd, EqualsTheScalarReferenceBitForBitOnEveryTarget) {
   EXPECT_GE(resolved, 5000u);  // not vacuous: most texels converge
 }
 
+// The unusable-quad flags (SurfaceMap::quad_ok), read by the vector kernels
+// as one 32-bit gather per lookup: with a random fifth of the quads made
+// unusable (a pattern no neighbour predicts), heights and re-solved heights
+// still equal the reference's on every target, and the flags change them.
+TEST(ResolveSimd, UnusableQuadsAreReadAsTheReferenceReadsThem) {
+  const hrt::Model box = hrt::load_bundle(hrt_test::golden_dir() + "/ridged_box.hbundle");
+  hrt::Model holed = box;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> U(-1.0, 1.0);
+  const size_t quads = static_cast<size_t>(holed.atlas.width) * holed.atlas.height;
+  ASSERT_EQ(holed.surface.quad_ok.size(), quads + hrt::SurfaceMap::kQuadOkPadding);
+  for (size_t q = 0; q < quads; ++q)
+    if (U(rng) > 0.6) holed.surface.quad_ok[q] = 0;
+  hrt::SceneOptions so;
+  so.threads = 1;
+  hrt::Scene scene({&box, &box}, so);
+  hrt::State st(scene);
+  st.poses[1] = hrt_test::pose_at(hrt::Vec3(0.0, 0, 0));
+  st.poses[0] = hrt_test::pose_at(hrt::Vec3(-0.001, 0.0006, 0.0119),
+                                  Eigen::Quaterniond(Eigen::AngleAxisd(0.27, hrt::Vec3::UnitZ())) *
+                                      Eigen::Quaterniond(0, 1, 0, 0));
+  hrt::frame(scene, st);
+  std::vector<int64_t> targets;
+  for (int64_t bits = hwy::SupportedTargets(); bits != 0; bits &= bits - 1) targets.push_back(bits & -bits);
+  size_t changed = 0, compared = 0;
+  for (int k = 0; k < st.num_patches; ++k) {
+    const hrt::ContactPatch& p = st.patches[static_cast<size_t>(k)];
+    if (p.tris_a.empty()) continue;
+    const int N = p.window.resolution, border = 1, S = N + 2 * border;
+    const Eigen::Isometry3d TA = st.poses[0].iso();
+    Eigen::Isometry3d T = TA;
+    T.pretranslate(0.4 * p.window.cell * p.u);
+    std::vector<double> intact(static_cast<size_t>(S) * S), h0(intact.size()), h1(intact.size());
+    std::vector<double> ref(static_cast<size_t>(N) * N), got(ref.size());
+    hrt::HeightSeeds seeds, s1, s_intact;
+    seeds.reserve(S), s1.reserve(S), s_intact.reserve(S);
+    hrt::use_reference_heights(true);
+    hrt::rasterize_heights_seeded(box, TA, p.tris_a, p.n, p.u, p.v, p.window, border, true, intact.data(), s_intact);
+    hrt::rasterize_heights_seeded(holed, TA, p.tris_a, p.n, p.u, p.v, p.window, border, true, h0.data(), seeds);
+    hrt::resolve_heights_reference(holed, T, TA, p.n, p.u, p.v, p.window, true, h0.data(), border, seeds, ref.data());
+    hrt::use_reference_heights(false);
+    for (size_t q = 0; q < h0.size(); ++q) changed += std::memcmp(&h0[q], &intact[q], sizeof(double)) != 0;
+    for (int64_t t : targets) {
+      hwy::SetSupportedTargetsForTest(t);
+      const std::string name = hrt::resolve_heights_target();
+      hrt::rasterize_heights_seeded(holed, TA, p.tris_a, p.n, p.u, p.v, p.window, border, true, h1.data(), s1);
+      ASSERT_EQ(std::memcmp(h0.data(), h1.data(), h0.size() * sizeof(double)), 0) << name << " heights";
+      std::fill(got.begin(), got.end(), 12345.0);
+      hrt::resolve_heights(holed, T, TA, p.n, p.u, p.v, p.window, true, h0.data(), border, seeds, got.data());
+      ASSERT_EQ(std::memcmp(ref.data(), got.data(), ref.size() * sizeof(double)), 0) << name << " re-solved";
+      ++compared;
+    }
+    hwy::SetSupportedTargetsForTest(0);
+  }
+  EXPECT_GE(compared, 2u);
+  EXPECT_GE(changed, 100u);  // the holes reach the heights: the flags are really read
+}
+
 // Whole frames (collision, patches, Eq. 7, the force model) with the
 // vectorized loops and with the reference: the same wrench, bit for bit.
 TEST(ResolveSimd, FramesEqualTheReferenceBitForBit) {
