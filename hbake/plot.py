@@ -18,6 +18,9 @@ column). Figures, each a PNG written to ``--out`` (default: beside the trace, na
   run at that frame's poses (the trace records neither), found on PATH or given with
   ``--hrt``.
 
+``--audio`` also writes ``<trace stem>.wav``: the contact force's high-frequency part as
+sound (hbake/sound.py).
+
 Matplotlib's Agg backend renders off screen; the same trace gives the same picture.
 """
 from __future__ import annotations
@@ -364,8 +367,10 @@ def scene_picture(tr: Trace, scene: Path, frame: int, path: Path, hrt: str | Non
 
 
 def plot_trace(trace: Path, figures=DEFAULT_FIGURES, out: Path | None = None, scene: Path | None = None,
-               frame: int | None = None, axis=(0.0, 0.0, 1.0), hrt: str | None = None) -> list[Path]:
-    """Write the figures of ``trace``; returns their paths."""
+               frame: int | None = None, axis=(0.0, 0.0, 1.0), hrt: str | None = None,
+               audio: bool = False, audio_source: str = "contact", audio_cutoff: float | None = None) -> list[Path]:
+    """Write the figures of ``trace`` (and with ``audio`` its sound, hbake/sound.py);
+    returns their paths."""
     trace = Path(trace)
     tr = Trace(trace)
     out = Path(out) if out is not None else trace.parent
@@ -388,6 +393,11 @@ def plot_trace(trace: Path, figures=DEFAULT_FIGURES, out: Path | None = None, sc
         elif name == "scene":
             fr = frame if frame is not None else int(tr.frames()[len(tr) // 2])
             paths.append(scene_picture(tr, Path(scene), fr, path, hrt))
+    if audio:
+        from hbake import sound
+        cutoff = sound.DEFAULT_CUTOFF if audio_cutoff is None else audio_cutoff
+        sig = sound.trace_vibration(tr, sound.DEFAULT_RATE, cutoff, audio_source)
+        paths.append(sound.write_wav(out / f"{stem}.wav", sig, sound.DEFAULT_RATE))
     return paths
 
 
@@ -417,7 +427,14 @@ def _vec3(ctx, param, value):
               help="fig8: the contact normal n (rotation about it, translation along it).")
 @click.option("--hrt", "hrt", type=click.Path(path_type=Path),
               help="The hrt binary for the scene picture [default: $HRT, else hrt on PATH].")
-def plot_command(trace, figures, out, scene, frame, axis, hrt):
+@click.option("--audio", is_flag=True,
+              help="Also write <trace stem>.wav: the contact force's vibration (above --audio-cutoff) "
+                   "as 44.1 kHz mono sound, in real time.")
+@click.option("--audio-source", type=click.Choice(["contact", "device"]), default="contact", show_default=True,
+              help="The force heard: the texture contact force on the probe, or the force written to the device.")
+@click.option("--audio-cutoff", type=click.FloatRange(min=0.1, max=2000.0), default=20.0, show_default=True,
+              metavar="HZ", help="High-pass cutoff of the sound (Hz): slower changes are force, not vibration.")
+def plot_command(trace, figures, out, scene, frame, axis, hrt, audio, audio_source, audio_cutoff):
     """Make the paper's figures (Fig. 7, 8 and 9 styles, a scene picture) from the trace TRACE of `hrt run`.
 
     Exit codes: 0 ok, 1 internal error, 2 bad option, 3 trace or scene missing, 4 trace or
@@ -426,7 +443,8 @@ def plot_command(trace, figures, out, scene, frame, axis, hrt):
     figs = list(dict.fromkeys(f for x in (figures or DEFAULT_FIGURES)
                               for f in (FIGURES if x == "all" else (x,))))
     try:
-        for p in plot_trace(trace, figs, out, scene, frame, axis, str(hrt) if hrt else None):
+        for p in plot_trace(trace, figs, out, scene, frame, axis, str(hrt) if hrt else None,
+                            audio, audio_source, audio_cutoff):
             click.echo(str(p))
     except HbakeError as exc:
         click.echo(f"hbake: error: {exc}", err=True)

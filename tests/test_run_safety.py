@@ -94,11 +94,13 @@ def _peak_rss(cmd, timeout=300):
 MAX_F, MAX_T, SOFT = 4.0, 0.05, 0.5
 
 
-def test_soft_start_bounds_the_output_at_every_tick_with_the_probe_deep_inside(models, hrt, tmp_path):
+@pytest.mark.parametrize("kind", ["scripted", "virtual"])
+def test_soft_start_bounds_the_output_at_every_tick_with_the_probe_deep_inside(models, hrt, tmp_path, kind):
     # The block's target 5 mm inside the slab from t = 0, the block itself starting 0.05 mm in,
     # tilted 0.02 rad so the contact has a torque. A stiff contact (1e5 N/m: 5 N at 50 um)
     # holds the block near the surface, so the coupling (2000 N/m) asks for about
-    # 2000 x 5 mm = 10 N, more than twice the 4 N limit, from the first frame.
+    # 2000 x 5 mm = 10 N, more than twice the 4 N limit, from the first frame. The handle is
+    # a scripted device holding still there, or a virtual one (the viewer's) left there.
     q = S.quat([1, 0.3, 0], 0.02)
     lift = (S.BLOCK[1] / 2) * math.sin(0.02) + (S.BLOCK[2] / 2) * math.cos(0.02)
     z = SLAB_TOP + lift
@@ -107,7 +109,8 @@ def test_soft_start_bounds_the_output_at_every_tick_with_the_probe_deep_inside(m
         "run": {"duration": 0.8, "lockstep": True},
         "object": objects(models, "block", (0.0, 0.0, z - 0.05 * MM), q),
         "force": {"resolution": RES, "stiffness": 1e5},
-        "device": {"trajectory": still(tmp_path / "deep.csv", (0.0, 0.0, z - 5 * MM), q),
+        "device": {**({"trajectory": still(tmp_path / "deep.csv", (0.0, 0.0, z - 5 * MM), q)} if kind == "scripted"
+                      else {"type": "virtual", "start_position": [0.0, 0.0, z - 5 * MM], "start_orientation": q}),
                    "max_force": MAX_F, "max_torque": MAX_T},
         "loop": {"soft_start": SOFT},
         "trace": {"path": trace_path, "device_log": log_path},

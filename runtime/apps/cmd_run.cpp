@@ -106,8 +106,8 @@ int run(const RunFlags& f) {
   } catch (const hrt::OutputOverwritesInput& e) {
     throw Exit(kOutput, std::string("error: ") + e.what());
   }
-  if (cfg.lockstep && cfg.device.type != "scripted")
-    throw Exit(kUsage, "--lockstep needs a scripted device (" + cfg.file + " has device.type = \"" +
+  if (cfg.lockstep && cfg.device.type != "scripted" && cfg.device.type != "virtual")
+    throw Exit(kUsage, "--lockstep needs a scripted or virtual device (" + cfg.file + " has device.type = \"" +
                            cfg.device.type + "\"); see hrt run --help");
   // Where the backend choice comes from, for the messages.
   std::string backend_source = cfg.file + ": run.backend = \"" + cfg.backend + "\"";

@@ -91,11 +91,13 @@ void set_poses(PyScene& s, nb::ndarray<const double, nb::ndim<2>, nb::c_contig, 
   }
 }
 
-nb::dict result(const PyScene& s) {
-  const hrt::State& st = *s.state;
+// The patches of a frame's State as arrays (Scene.query's "patches",
+// Runner.step's "contacts"), with each patch's window: the corner of texel
+// (0, 0), u, v and the side (N x cell).
+nb::dict patch_arrays(const hrt::State& st) {
   const int m = st.num_patches;
   std::vector<double> delta(m), n(3 * m), force(3 * m), torque(3 * m), p_a(3 * m), p_b(3 * m), grad(6 * m),
-      delta_bound(m);
+      delta_bound(m), origin(3 * m), u(3 * m), v(3 * m), side(m);
   std::vector<int64_t> ids(m), object_b(m);
   nb::list covered, refused, clamped;
   for (int k = 0; k < m; ++k) {
@@ -110,7 +112,11 @@ nb::dict result(const PyScene& s) {
       torque[3 * k + j] = c.torque[j];
       p_a[3 * k + j] = c.p_a[j];
       p_b[3 * k + j] = c.p_b[j];
+      origin[3 * k + j] = c.window.origin[j];
+      u[3 * k + j] = c.u[j];
+      v[3 * k + j] = c.v[j];
     }
+    side[k] = c.window.cell * c.window.resolution;
     for (int j = 0; j < 6; ++j) grad[6 * k + j] = c.grad[j];
     covered.append(c.covered);
     refused.append(c.refused);
@@ -131,6 +137,16 @@ nb::dict result(const PyScene& s) {
   patches["covered"] = covered;
   patches["refused"] = refused;
   patches["clamped"] = clamped;
+  patches["window_origin"] = array(origin.data(), {um, 3});
+  patches["u"] = array(u.data(), {um, 3});
+  patches["v"] = array(v.data(), {um, 3});
+  patches["window_side"] = array(side.data(), {um});
+  return patches;
+}
+
+nb::dict result(const PyScene& s) {
+  const hrt::State& st = *s.state;
+  nb::dict patches = patch_arrays(st);
   std::vector<double> wb(6 * s.models.size(), 0.0);
   for (size_t b = 1; b < s.models.size(); ++b)
     for (int j = 0; j < 6; ++j) wb[6 * b + j] = st.wrench_b[b][j];
@@ -196,6 +212,15 @@ struct PyRunner {
     d["coupling"] = array(fr.coupling.data(), {6});
     d["device"] = array(fr.device.data(), {6});
     d["patches"] = fr.patches;
+    const hrt::State& st = runner->session().state();
+    d["contacts"] = patch_arrays(st);
+    std::vector<double> poses(7 * st.poses.size());
+    for (size_t b = 0; b < st.poses.size(); ++b) pose7(st.poses[b], poses.data() + 7 * b);
+    d["poses"] = array(poses.data(), {st.poses.size(), 7});
+    const hrt::DeviceTarget& tg = runner->target();
+    pose7(tg.device, p);
+    d["device_pose"] = array(p, {7});
+    d["device_output"] = array(tg.output.data(), {6});
     return d;
   }
 };
@@ -344,16 +369,27 @@ NB_MODULE(_hrt, m) {
   nb::class_<PyRunner>(m, "Runner",
                        "A scene file's haptic session (docs/scene-format.md) in lockstep: the scripted device,\n"
                        "the device loop and the simulation of `hrt run --lockstep`, frame by frame.")
-      .def("__init__", [](PyRunner* self, const std::string& scene, nb::object duration, const std::string& trace) {
+      .def("__init__", [](PyRunner* self, const std::string& scene, nb::object duration, const std::string& trace,
+                          const std::string& device) {
+             if (device != "file" && device != "virtual")
+               throw std::invalid_argument("device must be \"file\" or \"virtual\", got \"" + device + "\"");
              hrt::RunConfig cfg = hrt::load_run_config(scene);
              hrt::RunOverrides o;
              o.lockstep = true;
              if (!duration.is_none()) o.duration = nb::cast<double>(duration);
              o.trace = trace;
              hrt::apply_overrides(cfg, o);
+             if (device == "virtual" && cfg.device.type != "virtual") {
+               // The file's device replaced by a virtual handle holding the
+               // probe's initial pose (its limits and workspace kept; a
+               // plugin's limits are its own, so the file's defaults apply).
+               cfg.device.type = "virtual";
+               cfg.device.start = cfg.loop.map.to_device(cfg.objects.at(0).pose);
+               cfg.device.start_set = false;
+             }
              hrt::check_run_outputs(cfg);
-             if (cfg.device.type != "scripted")
-               throw std::invalid_argument(cfg.file + ": lockstep needs a scripted device (device.type = \"" +
+             if (cfg.device.type != "scripted" && cfg.device.type != "virtual")
+               throw std::invalid_argument(cfg.file + ": lockstep needs a scripted or virtual device (device.type = \"" +
                                            cfg.device.type + "\")");
              auto runner = std::make_unique<hrt::Runner>(cfg);
              runner->open();
@@ -366,9 +402,11 @@ NB_MODULE(_hrt, m) {
              self->runner = std::move(runner);
              self->trace = std::move(writer);
            },
-           "scene"_a, "duration"_a = nb::none(), "trace"_a = "",
-           "Loads the scene file (its bundles, trajectories and scripted device) and opens the session.\n"
-           "duration (s) and trace (a path) override the file's, as `hrt run --duration --trace` do.\n"
+           "scene"_a, "duration"_a = nb::none(), "trace"_a = "", "device"_a = "file",
+           "Loads the scene file (its bundles, trajectories and scripted or virtual device) and opens the\n"
+           "session. duration (s) and trace (a path) override the file's, as `hrt run --duration --trace`\n"
+           "do. device=\"virtual\" replaces the file's device with a virtual one (set_device_pose) that\n"
+           "starts where the probe starts, keeping the file's limits and workspace map.\n"
            "Raises hrt.SceneFileError, hrt.BundleError, hrt.DeviceError or ValueError.")
       .def("step", [](PyRunner& r) -> nb::object {
              if (r.finished) return nb::none();
@@ -386,6 +424,35 @@ NB_MODULE(_hrt, m) {
            },
            "Runs the device loop to the next simulation frame and returns it (t, frame, probe and target\n"
            "poses (7,), contact, coupling and device wrenches (6,), patches), or None at the end.")
+      .def("set_device_pose", [](PyRunner& r, nb::ndarray<const double, nb::shape<7>, nb::c_contig, nb::device::cpu> pose,
+                                 bool clutch) {
+             hrt::VirtualDevice* dev = r.runner->virtual_device();
+             if (!dev)
+               throw std::invalid_argument("set_device_pose: the device is \"" + r.runner->config().device.type +
+                                           "\", not \"virtual\"");
+             const double* p = pose.data();
+             hrt::Pose d;
+             d.position = hrt::Vec3(p[0], p[1], p[2]);
+             d.rotation = Eigen::Quaterniond(p[6], p[3], p[4], p[5]);
+             if (!dev->set_pose(d, clutch))
+               throw std::invalid_argument("set_device_pose: the pose must be finite with a non-zero quaternion");
+           }, "pose"_a, "clutch"_a = false,
+           "A virtual device ([device] type = \"virtual\"): the handle's pose (x y z qx qy qz qw, device\n"
+           "frame) read by every device tick from the next step() on, and its clutch.")
+      .def("target_to_device", [](const PyRunner& r,
+                                  nb::ndarray<const double, nb::shape<7>, nb::c_contig, nb::device::cpu> pose) {
+             const double* p = pose.data();
+             hrt::Pose t;
+             t.position = hrt::Vec3(p[0], p[1], p[2]);
+             t.rotation = Eigen::Quaterniond(p[6], p[3], p[4], p[5]);
+             if (!t.position.allFinite() || !(t.rotation.norm() > 1e-12))
+               throw std::invalid_argument("target_to_device: the pose must be finite with a non-zero quaternion");
+             double out[7];
+             pose7(r.runner->config().loop.map.to_device(t), out);
+             return array(out, {7});
+           }, "pose"_a,
+           "The handle pose (device frame) whose coupling target is `pose` (the probe's object frame in\n"
+           "the scene): the inverse of the scene file's [workspace] map (before any clutch re-indexing).")
       .def("run", [](PyRunner& r) {
              {
                nb::gil_scoped_release release;

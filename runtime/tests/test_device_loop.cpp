@@ -172,6 +172,13 @@ TEST(WorkspaceMap, ScaleOffsetAndGraspAgainstPosesComputedByHand) {
   const Quaterniond q_back = m.offset.rotation.conjugate() * q_handle;
   EXPECT_LE((p_back - dev.position).cwiseAbs().maxCoeff(), 1e-12);
   EXPECT_NEAR(std::abs(q_back.dot(q_dev)), 1.0, 1e-12);
+  // to_device is that inverse: the hand computation above, and to_scene(to_device(t)) = t.
+  const Pose d2 = m.to_device(t2);
+  EXPECT_LE((d2.position - dev.position).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_NEAR(std::abs(d2.rotation.dot(q_dev)), 1.0, 1e-12);
+  const Pose t3 = m.to_scene(m.to_device(t));
+  EXPECT_LE((t3.position - t.position).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_NEAR(std::abs(t3.rotation.dot(t.rotation)), 1.0, 1e-12);
 }
 
 // Wrenches go back by the inverse of the offset's rotation and keep their

@@ -523,7 +523,7 @@ TEST_F(RunConfig, DeviceAndRunConsistencyErrors) {
                "reports its own");
   expect_error(objects + "[device]\ntype = \"haptic\"\n", "device.type", "must be one of");
   expect_error(objects + "[run]\nlockstep = true\n[device]\ntype = \"udp\"\n", "run.lockstep",
-               "needs a scripted device");
+               "needs a scripted or virtual device");
   expect_error(objects + "[device]\ntype = \"udp\"\nreply_address = \"10.0.0.2\"\n", "device.reply_address",
                "needs a reply_port");
   expect_error(minimal("[coupling]\nk_lin = 100\nb_lin = 1\nk_ang = 1\n"), "coupling.b_ang",

@@ -4,7 +4,10 @@
 // segment cache agreeing with a plain search.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cmath>
+#include <limits>
+#include <thread>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -265,4 +268,72 @@ TEST(ScriptedDevice, PlaysTheTrajectoryAndKeepsTheLastWrench) {
 
   hrt::ScriptedDevice none(Trajectory(), info);
   EXPECT_FALSE(none.read(0.0, s));
+}
+
+TEST(VirtualDevice, ReadsThePoseLastSetAndRefusesNonFiniteOnes) {
+  hrt::DeviceInfo info;
+  const Pose start = pose(Vec3(0.01, 0.02, 0.03), Quaterniond(AngleAxisd(0.3, Vec3::UnitY())));
+  hrt::VirtualDevice dev(start, info);
+  hrt::DeviceSample s;
+  ASSERT_TRUE(dev.read(0.0, s));
+  EXPECT_EQ(s.pose.position, start.position);
+  EXPECT_NEAR(s.pose.rotation.angularDistance(start.rotation), 0.0, 1e-15);
+  EXPECT_FALSE(s.clutch);
+  // A quaternion of any non-zero norm is normalized; the clutch is passed on.
+  Pose p = pose(Vec3(-0.04, 0.0, 0.5), Quaterniond(2.0, 0.0, 0.0, 2.0));
+  ASSERT_TRUE(dev.set_pose(p, true));
+  ASSERT_TRUE(dev.read(0.1, s));
+  EXPECT_EQ(s.pose.position, p.position);
+  EXPECT_NEAR(s.pose.rotation.norm(), 1.0, 1e-15);
+  EXPECT_NEAR(s.pose.rotation.angularDistance(Quaterniond(AngleAxisd(M_PI / 2, Vec3::UnitZ()))), 0.0, 1e-12);
+  EXPECT_TRUE(s.clutch);
+  // Refused, and the previous pose kept: a NaN, an infinity, a zero quaternion.
+  Pose bad = p;
+  bad.position.x() = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_FALSE(dev.set_pose(bad));
+  bad = p;
+  bad.rotation = Quaterniond(0, 0, 0, 0);
+  EXPECT_FALSE(dev.set_pose(bad));
+  bad = p;
+  bad.position.z() = std::numeric_limits<double>::infinity();
+  EXPECT_FALSE(dev.set_pose(bad));
+  ASSERT_TRUE(dev.read(0.2, s));
+  EXPECT_EQ(s.pose.position, p.position);
+  hrt::Vec6 w;
+  w << 1, 2, 3, 4, 5, 6;
+  dev.write(0.2, w);
+  EXPECT_EQ(dev.last_wrench(), w);
+  info.dof_sensed = 3;  // position only: orientation reads identity
+  hrt::VirtualDevice dev3(p, info);
+  ASSERT_TRUE(dev3.read(0.0, s));
+  EXPECT_EQ(s.pose.rotation.coeffs(), Quaterniond::Identity().coeffs());
+  // A start pose that is not one is replaced by the origin.
+  hrt::VirtualDevice dev0(bad, hrt::DeviceInfo{});
+  ASSERT_TRUE(dev0.read(0.0, s));
+  EXPECT_EQ(s.pose.position, Vec3::Zero());
+}
+
+// set_pose on one thread while read() runs on another: every pose read is one
+// that was set, never half of one (the sequence lock).
+TEST(VirtualDevice, ReadsWholePosesWhileAnotherThreadSetsThem) {
+  hrt::VirtualDevice dev(pose(Vec3(0, 0, 0), Quaterniond::Identity()), hrt::DeviceInfo{});
+  std::atomic<bool> stop{false};
+  std::thread writer([&] {
+    for (int i = 1; !stop.load(); ++i) {
+      const double a = 1e-3 * (i % 1000);
+      dev.set_pose(pose(Vec3(a, 2 * a, 3 * a), Quaterniond(AngleAxisd(a, Vec3::UnitZ()))));
+    }
+  });
+  hrt::DeviceSample s;
+  int torn = 0;
+  for (int k = 0; k < 200000; ++k) {
+    ASSERT_TRUE(dev.read(0.0, s));
+    const double a = s.pose.position.x();
+    if (s.pose.position.y() != 2 * a || s.pose.position.z() != 3 * a ||
+        s.pose.rotation.angularDistance(Quaterniond(AngleAxisd(a, Vec3::UnitZ()))) > 1e-12)
+      ++torn;
+  }
+  stop = true;
+  writer.join();
+  EXPECT_EQ(torn, 0);
 }

@@ -8,7 +8,12 @@
 //                   the scene's objects at display rate;
 //   PluginDevice    a shared library implementing the C interface of
 //                   hrt/device_plugin.h, loaded with dlopen, so a lab wraps a
-//                   vendor SDK without rebuilding the runtime.
+//                   vendor SDK without rebuilding the runtime;
+//   VirtualDevice   a handle moved by the application (set_pose): the mouse
+//                   of a viewer, a script, a test. What it is given passes
+//                   through the same coupling and device loop as a real
+//                   device's pose, and the wrench the loop writes to it is
+//                   bounded the same way.
 //
 // Frames and units: the device reports its handle's pose in its own base
 // frame (meters, unit quaternion); the wrench it is given is in that same
@@ -20,6 +25,7 @@
 // period and must not allocate, lock, block or log.
 #pragma once
 
+#include <atomic>
 #include <cstdint>
 #include <memory>
 #include <stdexcept>
@@ -92,6 +98,32 @@ class ScriptedDevice : public Device {
   Trajectory trajectory_;
   DeviceInfo info_;
   Vec6 last_ = Vec6::Zero();
+};
+
+// A handle the application moves (`[device] type = "virtual"`): read()
+// returns the pose last given to set_pose() (the start pose before any),
+// write() keeps the wrench for last_wrench(). Deterministic in lockstep: a
+// pose set between two Runner::step() calls is read by every tick of the
+// next step. set_pose() and last_wrench() may run on any thread while the
+// device thread calls read() and write(): a sequence lock, so read() never
+// blocks and never sees half of a pose.
+class VirtualDevice : public Device {
+ public:
+  VirtualDevice(Pose start, DeviceInfo info);
+  const DeviceInfo& info() const override { return info_; }
+  bool read(double t, DeviceSample& out) noexcept override;
+  void write(double t, const Vec6& wrench) noexcept override;
+  // The handle's pose in the device frame (normalized here; a non-finite
+  // pose or a zero quaternion is ignored and returns false) and the clutch.
+  bool set_pose(const Pose& pose, bool clutch = false) noexcept;
+  Vec6 last_wrench() const noexcept;
+
+ private:
+  static constexpr int kWords = 8;  // x y z qx qy qz qw clutch
+  std::atomic<uint64_t> seq_{0};
+  std::atomic<double> pose_[kWords];
+  std::atomic<double> wrench_[6];
+  DeviceInfo info_;
 };
 
 // Options of the UDP bridge (docs/udp-protocol.md).

@@ -125,6 +125,7 @@ struct WorkspaceMap {
   Pose offset;
   Pose grasp;
   Pose to_scene(const Pose& device) const;          // the probe target pose
+  Pose to_device(const Pose& target) const;         // the inverse: the handle pose that makes `target`
   Vec6 wrench_to_device(const Vec6& scene) const;   // rotate force and torque into the device frame
 };
 

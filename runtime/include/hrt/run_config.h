@@ -39,12 +39,16 @@ struct ObjectConfig {
 };
 
 struct DeviceConfig {
-  std::string type = "scripted";  // scripted | udp | plugin
+  std::string type = "scripted";  // scripted | udp | plugin | virtual
   std::string trajectory;         // scripted: the trajectory CSV (resolved)
   std::string trajectory_prefix;  // scripted: column prefix ("device_" replays a trace)
   UdpOptions udp;                 // udp
   std::string plugin;             // plugin: shared library path (resolved)
   std::string plugin_config;      // plugin: passed to its create()
+  // virtual: the handle's pose until the application moves it; left out of
+  // the file, the pose whose target is the probe's initial pose.
+  Pose start;
+  bool start_set = false;
   DeviceInfo info;                // limits (scripted and udp; a plugin reports its own)
   // Keys of `info` the file set explicitly (a plugin's own figures are then overridden).
   bool max_force_set = false, max_torque_set = false, max_stiffness_set = false,

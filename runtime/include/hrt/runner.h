@@ -75,6 +75,9 @@ class Runner {
   Session& session();
   const Session& session() const;
   Device& device();                      // as opened (fault(), a UdpDevice's counters)
+  // The device as a VirtualDevice (`[device] type = "virtual"`: set_pose()),
+  // or nullptr for the other kinds.
+  VirtualDevice* virtual_device();
   const DeviceInfo& device_info() const;  // the limits in force (a plugin's own, overridden by the file)
   const DeviceLoop& loop() const;
   const DeviceTarget& target() const;    // the device target of the last frame

@@ -110,6 +110,18 @@ double SteadyClock::now() const noexcept { return static_cast<double>(monotonic_
 // ---------------------------------------------------------------------------
 // WorkspaceMap
 // ---------------------------------------------------------------------------
+Pose WorkspaceMap::to_device(const Pose& target) const {
+  // handle = target * grasp, then undo the offset and the scale.
+  const Eigen::Quaterniond R = offset.rotation.normalized();
+  const Eigen::Quaterniond q_target = target.rotation.normalized();
+  const Eigen::Quaterniond q_handle = (q_target * grasp.rotation.normalized()).normalized();
+  const Vec3 p_handle = target.position + q_target * grasp.position;
+  Pose d;
+  d.rotation = (R.conjugate() * q_handle).normalized();
+  d.position = (R.conjugate() * (p_handle - offset.position)) / scale;
+  return d;
+}
+
 Pose WorkspaceMap::to_scene(const Pose& device) const {
   const Eigen::Quaterniond R = offset.rotation.normalized();
   // Devices report quaternions that drift off unit length by rounding; the

@@ -111,7 +111,7 @@ const std::map<std::string, std::vector<std::string>>& known_keys() {
       {"device",
        {"type", "trajectory", "trajectory_prefix", "name", "dof_actuated", "dof_sensed", "workspace", "max_force",
         "max_torque", "max_stiffness", "max_angular_stiffness", "bind", "port", "reply_address", "reply_port",
-        "display_address", "display_port", "display_rate", "plugin", "config"}},
+        "display_address", "display_port", "display_rate", "plugin", "config", "start_position", "start_orientation"}},
       {"loop",
        {"period", "watchdog", "watchdog_ramp", "soft_start", "max_force_rate", "max_torque_rate", "multirate",
         "realtime", "priority", "log_capacity"}},
@@ -413,11 +413,12 @@ void check_address(const Section& s, const std::string& k, const std::string& ad
 // Reads [device]; the keys of another device type are errors (a port on a
 // scripted device is a scene that does not do what its author thinks).
 void read_device(const Section& s, DeviceConfig& d) {
-  d.type = s.choice("type", "scripted", {"scripted", "udp", "plugin"});
+  d.type = s.choice("type", "scripted", {"scripted", "udp", "plugin", "virtual"});
   const std::vector<std::string> scripted_keys = {"trajectory", "trajectory_prefix"};
   const std::vector<std::string> udp_keys = {"bind", "port", "reply_address", "reply_port",
                                              "display_address", "display_port", "display_rate"};
   const std::vector<std::string> plugin_keys = {"plugin", "config"};
+  const std::vector<std::string> virtual_keys = {"start_position", "start_orientation"};
   // A plugin reports its own name, sensing and workspace; only its limits
   // can be overridden (the *_set flags).
   const std::vector<std::string> not_for_plugin = {"name", "dof_sensed", "workspace"};
@@ -428,6 +429,7 @@ void read_device(const Section& s, DeviceConfig& d) {
   if (d.type != "scripted") refuse(scripted_keys, "scripted");
   if (d.type != "udp") refuse(udp_keys, "udp");
   if (d.type != "plugin") refuse(plugin_keys, "plugin");
+  if (d.type != "virtual") refuse(virtual_keys, "virtual");
   if (d.type == "plugin")
     for (const std::string& k : not_for_plugin)
       if (s.has(k)) s.fail(k, "a plugin device reports its own (only its limits can be set here)");
@@ -460,8 +462,14 @@ void read_device(const Section& s, DeviceConfig& d) {
     d.plugin_config = s.string("config", "");
   }
 
+  if (d.type == "virtual") {
+    d.start_set = s.has("start_position") || s.has("start_orientation");
+    d.start.position = s.position("start_position");
+    d.start.rotation = s.quaternion("start_orientation");
+  }
+
   DeviceInfo& info = d.info;
-  info.name = s.string("name", d.type == "scripted" ? "scripted" : d.type == "udp" ? "udp" : info.name);
+  info.name = s.string("name", d.type == "plugin" ? info.name : d.type);
   if (info.name.empty()) s.fail("name", "must not be empty");
   auto dof = [&](const std::string& k, int def) {
     const int v = s.integer(k, def, 0, 6);
@@ -731,10 +739,12 @@ RunConfig load_run_config(const std::string& path) {
 
   // [device]
   read_device(section("device"), c.device);
+  if (c.device.type == "virtual" && !c.device.start_set && !c.objects.empty())
+    c.device.start = c.loop.map.to_device(c.objects[0].pose);
   c.session.max_device_stiffness = c.device.info.max_stiffness;
   c.session.max_device_angular_stiffness = c.device.info.max_angular_stiffness;
-  if (c.lockstep && c.device.type != "scripted")
-    section("run").fail("lockstep", "lockstep runs without a wall clock, so it needs a scripted device (this one is \"" +
+  if (c.lockstep && c.device.type != "scripted" && c.device.type != "virtual")
+    section("run").fail("lockstep", "lockstep runs without a wall clock, so it needs a scripted or virtual device (this one is \"" +
                                         c.device.type + "\")");
 
   // [loop]

@@ -29,8 +29,9 @@ std::unique_ptr<Device> make_device(const RunConfig& cfg) {
     return std::make_unique<ScriptedDevice>(Trajectory::load_csv(d.trajectory, d.trajectory_prefix), d.info);
   if (d.type == "udp") return std::make_unique<UdpDevice>(d.udp, d.info);
   if (d.type == "plugin") return std::make_unique<PluginDevice>(d.plugin, d.plugin_config);
-  // load_run_config accepts only the three kinds; a RunConfig built in code may not.
-  throw std::invalid_argument("device.type: unknown device type '" + d.type + "' (scripted, udp, plugin)");
+  if (d.type == "virtual") return std::make_unique<VirtualDevice>(d.start, d.info);
+  // load_run_config accepts only these kinds; a RunConfig built in code may not.
+  throw std::invalid_argument("device.type: unknown device type '" + d.type + "' (scripted, udp, plugin, virtual)");
 }
 
 // A plugin reports its own limits; the scene file may override them.
@@ -113,8 +114,9 @@ void Runner::open() {
   Impl& m = *impl_;
   if (m.session) throw std::logic_error("Runner::open: already open");
   const RunConfig& cfg = m.cfg;
-  if (cfg.lockstep && cfg.device.type != "scripted")
-    throw std::invalid_argument("lockstep needs a scripted device (device.type = \"" + cfg.device.type + "\")");
+  if (cfg.lockstep && cfg.device.type != "scripted" && cfg.device.type != "virtual")
+    throw std::invalid_argument("lockstep needs a scripted or virtual device (device.type = \"" + cfg.device.type +
+                                "\")");
   m.raw = make_device(cfg);
   m.raw->open();
   m.raw_open = true;
@@ -225,6 +227,7 @@ T& opened(const std::unique_ptr<T>& p, const char* what) {
 Session& Runner::session() { return opened(impl_->session, "session"); }
 const Session& Runner::session() const { return opened(impl_->session, "session"); }
 Device& Runner::device() { return opened(impl_->raw, "device"); }
+VirtualDevice* Runner::virtual_device() { return dynamic_cast<VirtualDevice*>(&opened(impl_->raw, "device")); }
 const DeviceInfo& Runner::device_info() const {
   opened(impl_->raw, "device_info");
   return impl_->info;
