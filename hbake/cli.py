@@ -321,6 +321,10 @@ from hbake.plot import plot_command  # noqa: E402
 
 main.add_command(plot_command, "plot")
 
+from hbake.cli_view import view_command  # noqa: E402
+
+main.add_command(view_command, "view")
+
 from hbake.cli_batch import batch_command, report_command  # noqa: E402
 
 main.add_command(batch_command, "batch")

@@ -1,0 +1,235 @@
+"""hbake view (hbake/viewer.py, docs/viewer.md) in headless Chromium, and the virtual device
+it drives.
+
+- a bundle's page: the 3-D canvas is not blank (pixel statistics of a screenshot), the
+  reconstructed surface is made of the atlas's own positions, the toggles reach the scene;
+- a live session of a scene file with the virtual device: a scripted drag (what the gizmo
+  does) moves the probe into contact, and the force the page shows is the runtime's
+  contact wrench of that frame (hrt.Runner, the same session as `hrt run`), digit for digit
+  as displayed; the virtual device's output stays within the device's force limit;
+- a replay of a committed small trace (tests/data/viewer, run by `hrt run` from its scene
+  file): frame N's patch count and force as the trace has them, and the page carries the
+  trace's sound;
+- no console errors in any of them.
+
+The virtual device's per-tick bounds (soft start, clamp) are checked with the other device
+kinds in tests/test_run_safety.py.
+"""
+from __future__ import annotations
+
+import io
+import os
+import re
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO / "tests" / "data" / "viewer"
+GOLDEN = REPO / "tests" / "golden"
+CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+
+hrt = pytest.importorskip("hrt")
+
+
+def _browser():
+    if not (os.path.exists(CHROMEDRIVER) and os.path.exists(CHROMIUM)):
+        if os.environ.get("CI"):
+            pytest.fail("chromium and chromium-driver are not installed (make setup installs them)")
+        pytest.skip("chromium / chromium-driver not installed")
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    # WebGL on the CPU (SwiftShader): the page's canvas is three.js.
+    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1200,900",
+              "--use-angle=swiftshader", "--enable-unsafe-swiftshader"):
+        opts.add_argument(a)
+    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    return webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=opts)
+
+
+def _open(driver, url: str, want: str | None = None, timeout: float = 60.0):
+    """Loads the page and waits until its panel shows `want` in some input (or any panel)."""
+    driver.get(url)
+    t0 = time.time()
+    while time.time() - t0 < timeout:
+        vals = _inputs(driver)
+        if vals and (want is None or any(want in v for v in vals)):
+            time.sleep(1.0)      # a few more frames for the canvas
+            return
+        time.sleep(0.25)
+    raise AssertionError(f"the page did not show {want!r} within {timeout} s: {_inputs(driver)}")
+
+
+def _inputs(driver) -> list[str]:
+    return driver.execute_script("return Array.from(document.querySelectorAll('input')).map(e => e.value)")
+
+
+def _field(driver, after: str) -> list[str]:
+    """The panel's read-only text fields from the one whose value is `after` on: t, frame,
+    patches, force, torque, depth, rate."""
+    vals = _inputs(driver)
+    i = vals.index(after)
+    return vals[i:i + 7]
+
+
+def _canvas_stats(driver, tmp_path: Path, name: str):
+    """(fraction of non-background pixels, their luminance standard deviation) of the 3-D
+    view: a screenshot's left part (the panel is on the right)."""
+    from PIL import Image
+
+    png = driver.get_screenshot_as_png()
+    (tmp_path / f"{name}.png").write_bytes(png)
+    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.float64)
+    h, w, _ = img.shape
+    view = img[: int(0.9 * h), : int(0.65 * w)]
+    lum = view @ np.array([0.299, 0.587, 0.114])
+    bg = np.median(lum[:10, :10])
+    fg = np.abs(lum - bg) > 8
+    return float(np.mean(fg)), float(np.std(lum[fg])) if np.any(fg) else 0.0
+
+
+def _severe(driver) -> list[str]:
+    return [e["message"] for e in driver.get_log("browser") if e["level"] == "SEVERE"]
+
+
+def _numbers(text: str) -> np.ndarray:
+    return np.array([float(x) for x in re.findall(r"[-+]?\d+\.\d+(?:e[-+]?\d+)?", text)])
+
+
+# ----------------------------------------------------------------------------
+
+
+def test_the_surface_is_the_atlas_positions_and_honours_the_triangle_budget():
+    from hbake.bundle import read_bundle
+    from hbake.viewer import surface_mesh
+
+    b = read_bundle(GOLDEN / "bumpy_blob.hbundle")
+    v, f = surface_mesh(b.atlas)
+    texels = b.atlas[..., :3].reshape(-1, 3).astype(np.float64)
+    # Every vertex is one of the atlas's texel positions, exactly.
+    found = {tuple(p) for p in texels}
+    assert len(v) > 100 and all(tuple(p) in found for p in v)
+    assert f.min() >= 0 and f.max() < len(v)
+    # Its bounding box is the coarse mesh's, to within the relief (the bake's ray reach).
+    cv = np.asarray(b.coarse_vertices)
+    diag = float(np.linalg.norm(cv.max(0) - cv.min(0)))
+    assert np.all(np.abs(v.min(0) - cv.min(0)) < 0.05 * diag)
+    assert np.all(np.abs(v.max(0) - cv.max(0)) < 0.05 * diag)
+    v2, f2 = surface_mesh(b.atlas, max_triangles=1000)
+    assert len(f2) <= 1000 < len(f)
+
+
+def test_bundle_page_draws_and_toggles(tmp_path):
+    from hbake.viewer import Viewer
+
+    v = Viewer(GOLDEN / "bumpy_blob.hbundle", port=0)
+    driver = _browser()
+    try:
+        _open(driver, v.url)
+        frac, std = _canvas_stats(driver, tmp_path, "bundle")
+        print(f"bundle page: {frac:.1%} of the view drawn, luminance std {std:.1f}")
+        assert frac > 0.03 and std > 3.0      # a lit surface, not a flat fill
+        assert v.groups["coarse"] and not any(h.visible for h in v.groups["coarse"])
+        # Clicking "coarse mesh" in the page shows it in the scene.
+        driver.execute_script("""
+            const label = Array.from(document.querySelectorAll('label, p, div'))
+                .find(e => e.childElementCount === 0 && e.textContent.trim() === 'coarse mesh');
+            const row = label.closest('div').parentElement;
+            row.querySelector('input[type=checkbox]').click();""")
+        t0 = time.time()
+        while time.time() - t0 < 10 and not all(h.visible for h in v.groups["coarse"]):
+            time.sleep(0.1)
+        assert all(h.visible for h in v.groups["coarse"])
+        assert _severe(driver) == []
+    finally:
+        driver.quit()
+        v.close()
+
+
+def test_live_page_drag_into_contact_shows_the_runtime_wrench(tmp_path):
+    from hbake.viewer import Viewer
+
+    scene = tmp_path / "live.toml"
+    scene.write_text(f"""
+[run]
+duration = 10.0
+lockstep = true
+[[object]]
+name = "pebble"
+bundle = "{GOLDEN / 'pebble.hbundle'}"
+position = [0.0, 0.0, 0.0175]
+[[object]]
+name = "blob"
+bundle = "{GOLDEN / 'bumpy_blob.hbundle'}"
+[device]
+type = "virtual"
+max_force = 2.0
+""")
+    v = Viewer(scene, port=0, realtime=False)
+    driver = _browser()
+    try:
+        assert v.last["patches"] == 0 or np.all(v.last["contacts"]["delta"] <= 0)
+        # The drag: the target 1.5 mm lower, turned 7 degrees about a tilted axis.
+        a = np.radians(7.0)
+        axis = np.array([0.3, 0.8, 0.2]) / np.linalg.norm([0.3, 0.8, 0.2])
+        q = np.concatenate([axis * np.sin(a / 2), [np.cos(a / 2)]])
+        v.drag_to([0.0003, -0.0002, 0.0160], q)
+        L = v.step(250)
+        assert L["patches"] >= 1 and np.max(L["contacts"]["delta"]) > 0
+        assert np.linalg.norm(L["force"]) > 0.05
+        # The device output is bounded by the device's limit whatever the drag asks.
+        assert np.linalg.norm(L["device_output"][:3]) <= 2.0
+        _open(driver, v.url, want=f"{L['t']:.4f} s")
+        t_, frame, patches, force, torque, depth, rate = _field(driver, f"{L['t']:.4f} s")
+        assert int(frame) == L["frame"] and int(patches) == L["patches"]
+        assert np.array_equal(_numbers(force), np.round(L["force"], 4))
+        assert np.array_equal(_numbers(torque), np.round(L["torque"], 4))
+        assert np.allclose(_numbers(depth), np.round(np.asarray(L["contacts"]["delta"]) * 1e3, 4))
+        frac, std = _canvas_stats(driver, tmp_path, "live")
+        print(f"live page at t = {L['t']} s: force {force}, {frac:.1%} drawn, std {std:.1f}")
+        assert frac > 0.03 and std > 3.0
+        # The same session as the runtime's own: a Runner given the same poses.
+        r = hrt.Runner(str(scene), device="virtual")
+        fr = r.step()
+        r.set_device_pose(r.target_to_device(np.concatenate([[0.0003, -0.0002, 0.0160], q])))
+        for _ in range(250):
+            fr = r.step()
+        assert fr["frame"] == L["frame"] and np.array_equal(fr["contact"][:3], L["force"])
+        assert _severe(driver) == []
+    finally:
+        driver.quit()
+        v.close()
+
+
+def test_replay_page_shows_the_trace_frame_and_its_sound(tmp_path):
+    from hbake.plot import Trace
+    from hbake.viewer import Viewer
+
+    tr = Trace(DATA / "press.trace.csv")
+    v = Viewer(DATA / "press.toml", DATA / "press.trace.csv", port=0)
+    driver = _browser()
+    try:
+        k = 37
+        v.show_frame(k)
+        t = float(tr["t"][k])
+        _open(driver, v.url, want=f"{t:.4f} s")
+        t_, frame, patches, force, torque, depth, rate = _field(driver, f"{t:.4f} s")
+        assert int(frame) == int(tr["frame"][k]) and int(patches) == int(tr["patches"][k]) >= 1
+        want = np.round([tr["contact_fx"][k], tr["contact_fy"][k], tr["contact_fz"][k]], 4)
+        assert np.array_equal(_numbers(force), want)
+        assert rate == "replay"
+        src = driver.execute_script("const a = document.getElementById('hbake-audio'); return a ? a.src : null")
+        assert src and src.startswith("data:audio/wav;base64,")
+        frac, std = _canvas_stats(driver, tmp_path, "replay")
+        assert frac > 0.03 and std > 3.0
+        assert _severe(driver) == []
+    finally:
+        driver.quit()
+        v.close()
