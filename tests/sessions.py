@@ -11,6 +11,8 @@ Models (meters):
 * ``strip``: a long grating for the sliding tests: ridges at 23 degrees to x (not a
   multiple of 45), wavelength STRIP_L = 4 mm (4.35 mm along x), amplitude 0.1 mm,
   96 x 10 mm, 0.125 mm cells (32 per wavelength);
+* ``fine_strip``: the same grating at FINE_L = 0.8 mm (0.1 mm cells, 8 per wavelength),
+  amplitude 0.05 mm, 66 x 8 mm, for the sound of a slide (tests/test_sound.py);
 * ``tip``: a smooth sphere of radius 4 mm (its coarse mesh is curved), the ball tip
   that slides over the strip;
 * ``block``: an untextured 12 x 8 x 4 mm block and ``slab``, an untextured
@@ -39,6 +41,10 @@ STRIP_ANGLE = 23.0
 STRIP_SIZE = (96 * MM, 10 * MM)
 STRIP_CELL = 0.125 * MM
 STRIP_THICK = 3 * MM
+FINE_L = 0.8 * MM
+FINE_A = 0.05 * MM
+FINE_SIZE = (66 * MM, 8 * MM)
+FINE_CELL = 0.1 * MM
 TIP_R = 4 * MM
 BLOCK = (12 * MM, 8 * MM, 4 * MM)
 SLAB = (160 * MM, 60 * MM, 6 * MM)
@@ -57,6 +63,19 @@ def make_strip() -> trimesh.Trimesh:
     return P._finish(P._heightfield_block(xs, ys, strip_height(X, Y), np.zeros_like(X)))
 
 
+def fine_strip_height(x, y):
+    a = math.radians(STRIP_ANGLE)
+    s = np.asarray(x) * math.cos(a) + np.asarray(y) * math.sin(a)
+    return STRIP_THICK + FINE_A * np.sin(2 * np.pi * s / FINE_L)
+
+
+def make_fine_strip() -> trimesh.Trimesh:
+    xs = np.linspace(0.0, FINE_SIZE[0], int(round(FINE_SIZE[0] / FINE_CELL)) + 1)
+    ys = np.linspace(0.0, FINE_SIZE[1], int(round(FINE_SIZE[1] / FINE_CELL)) + 1)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    return P._finish(P._heightfield_block(xs, ys, fine_strip_height(X, Y), np.zeros_like(X)))
+
+
 def make_tip() -> trimesh.Trimesh:
     ico = trimesh.creation.icosphere(subdivisions=4, radius=TIP_R)
     return P._finish(trimesh.Trimesh(ico.vertices, ico.faces, process=False))
@@ -72,7 +91,7 @@ def make_slab() -> trimesh.Trimesh:
     return P._finish(trimesh.Trimesh(b.vertices, b.faces, process=False))
 
 
-OWN = {"strip": make_strip, "tip": make_tip, "block": make_block, "slab": make_slab}
+OWN = {"strip": make_strip, "fine_strip": make_fine_strip, "tip": make_tip, "block": make_block, "slab": make_slab}
 
 
 def bake(name: str, root: Path) -> FS.Model:
