@@ -234,7 +234,10 @@ class Viewer:
         if self.mode == "live":
             import hrt
             try:
-                self.runner = hrt.Runner(str(target), duration=duration, device="file" if play else "virtual")
+                # No trace (the file's would be overwritten by an hour of dragging) and no
+                # frames kept (the page keeps the last seconds).
+                self.runner = hrt.Runner(str(target), duration=duration, device="file" if play else "virtual",
+                                         write_trace=False, keep_frames=False)
             except (hrt.SceneFileError, hrt.BundleError, hrt.DeviceError, ValueError) as exc:
                 raise InputInvalidError(str(exc)) from None
             self.virtual = not play

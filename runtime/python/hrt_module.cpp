@@ -181,7 +181,10 @@ struct PyRunner {
   std::vector<double> t, probe, target, contact, coupling, device;
   std::vector<int64_t> patches;
 
+  bool keep = true;  // collect the frames (Runner.frames)
   void record(const hrt::SessionFrame& fr) {
+    if (trace) trace->row(hrt::TraceRow{&fr, &runner->target()});
+    if (!keep) return;
     t.push_back(fr.t);
     double p[7];
     pose7(fr.probe, p);
@@ -192,7 +195,6 @@ struct PyRunner {
     coupling.insert(coupling.end(), fr.coupling.data(), fr.coupling.data() + 6);
     device.insert(device.end(), fr.device.data(), fr.device.data() + 6);
     patches.push_back(fr.patches);
-    if (trace) trace->row(hrt::TraceRow{&fr, &runner->target()});
   }
   void finish() {
     if (finished) return;
@@ -370,7 +372,7 @@ NB_MODULE(_hrt, m) {
                        "A scene file's haptic session (docs/scene-format.md) in lockstep: the scripted device,\n"
                        "the device loop and the simulation of `hrt run --lockstep`, frame by frame.")
       .def("__init__", [](PyRunner* self, const std::string& scene, nb::object duration, const std::string& trace,
-                          const std::string& device) {
+                          const std::string& device, bool write_trace, bool keep_frames) {
              if (device != "file" && device != "virtual")
                throw std::invalid_argument("device must be \"file\" or \"virtual\", got \"" + device + "\"");
              hrt::RunConfig cfg = hrt::load_run_config(scene);
@@ -379,6 +381,7 @@ NB_MODULE(_hrt, m) {
              if (!duration.is_none()) o.duration = nb::cast<double>(duration);
              o.trace = trace;
              hrt::apply_overrides(cfg, o);
+             if (!write_trace) cfg.trace.path.clear(), cfg.trace.device_log.clear();
              if (device == "virtual" && cfg.device.type != "virtual") {
                // The file's device replaced by a virtual handle holding the
                // probe's initial pose (its limits and workspace kept; a
@@ -401,12 +404,16 @@ NB_MODULE(_hrt, m) {
              new (self) PyRunner();
              self->runner = std::move(runner);
              self->trace = std::move(writer);
+             self->keep = keep_frames;
            },
-           "scene"_a, "duration"_a = nb::none(), "trace"_a = "", "device"_a = "file",
+           "scene"_a, "duration"_a = nb::none(), "trace"_a = "", "device"_a = "file", "write_trace"_a = true,
+           "keep_frames"_a = true,
            "Loads the scene file (its bundles, trajectories and scripted or virtual device) and opens the\n"
            "session. duration (s) and trace (a path) override the file's, as `hrt run --duration --trace`\n"
            "do. device=\"virtual\" replaces the file's device with a virtual one (set_device_pose) that\n"
-           "starts where the probe starts, keeping the file's limits and workspace map.\n"
+           "starts where the probe starts, keeping the file's limits and workspace map. write_trace=False\n"
+           "writes no trace even where the file names one; keep_frames=False keeps no frames in `frames`\n"
+           "(a long interactive session).\n"
            "Raises hrt.SceneFileError, hrt.BundleError, hrt.DeviceError or ValueError.")
       .def("step", [](PyRunner& r) -> nb::object {
              if (r.finished) return nb::none();
