@@ -23,6 +23,8 @@ def main() -> int:
     ap.add_argument("out", nargs="?", type=Path, default=REPO / "docs" / "images" / "viewer.png")
     ap.add_argument("--frame", type=int, default=700, help="trace row to show [700: the head on the torus]")
     ap.add_argument("--size", default="1400,900", help="window size W,H in pixels")
+    ap.add_argument("--max-triangles", type=int, default=150_000,
+                    help="per object (the CPU rasterizer of a headless browser is slow with more)")
     a = ap.parse_args()
     scene = REPO / "examples" / "experiments" / "hammer.toml"
     trace = REPO / "out" / "experiments" / "hammer.trace.csv"
@@ -34,8 +36,16 @@ def main() -> int:
 
     from hbake.viewer import Viewer
 
-    v = Viewer(scene, trace, port=0)
+    v = Viewer(scene, trace, port=0, max_triangles=a.max_triangles)
     v.show_frame(a.frame)
+    # The camera on the contact: the first patch's point on the torus, from above and aside.
+    import numpy as np
+    from hbake.viewer import MM
+    c = v.last["contacts"]
+    focus = np.asarray(c["p_b"][0]) * MM if len(c["delta"]) else np.asarray(v.last["probe"][:3]) * MM
+    cam = v.server.initial_camera
+    cam.look_at = tuple(focus)
+    cam.position = tuple(focus + np.array([0.35, -0.55, 0.35]) * v.extent)
     opts = webdriver.ChromeOptions()
     opts.binary_location = shutil.which("chromium") or "/usr/bin/chromium"
     for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", f"--window-size={a.size}",
@@ -43,6 +53,7 @@ def main() -> int:
         opts.add_argument(arg)
     driver = webdriver.Chrome(service=Service(executable_path=shutil.which("chromedriver") or "/usr/bin/chromedriver"),
                               options=opts)
+    driver.set_page_load_timeout(300)
     try:
         driver.get(v.url)
         want = f"{v.last['t']:.4f} s"

@@ -320,7 +320,8 @@ class Viewer:
         self.extent = extent
         if self.mode in ("live", "replay"):
             cv, cf = self.views[0].coarse
-            self.ghost = sc.add_mesh_simple("/target/ghost", cv * MM, cf, color=(0, 160, 90), wireframe=True)
+            self.ghost = sc.add_mesh_simple("/target/ghost", cv * MM, cf, color=(0, 160, 90), wireframe=True,
+                                            opacity=0.35)
             self.gizmo = None
             if self.mode == "live" and self.virtual:
                 o = self.objects[0]
@@ -363,7 +364,11 @@ class Viewer:
                                     title="contact torque", aspect=2.0),
             "depth": gui.add_uplot((x0, x0, x0), ({"label": "t (s)"}, {"label": "max delta (mm)", "stroke": "black"},
                                    {"label": "patches", "stroke": "orange"}), title="depth and patches", aspect=2.0),
+            "rate": gui.add_uplot((x0, x0), ({"label": "t (s)"}, {"label": "frames/s", "stroke": "purple"}),
+                                  title=("achieved simulation rate" if self.mode == "live"
+                                         else "recorded frame rate if alone (1 / total_us)"), aspect=2.5),
         }
+        self.rates: deque = deque()
         if self.mode == "replay":
             n = len(self.trace)
             with gui.add_folder("Replay"):
@@ -472,6 +477,10 @@ class Viewer:
             now = time.perf_counter()
             if now - t_rate >= 0.5:
                 self.sim_rate, n, t_rate = n / (now - t_rate), 0, now
+                with self.lock:
+                    self.rates.append((self.last["t"], self.sim_rate))
+                    while self.rates and self.rates[0][0] < self.last["t"] - PLOT_SECONDS:
+                        self.rates.popleft()
             if now - self._last_display >= 1.0 / DISPLAY_HZ:
                 self._display()
 
@@ -499,6 +508,9 @@ class Viewer:
         m = (tr["t"] >= t0) & (np.arange(len(tr)) <= k)
         ts = tr["t"][m]
         self._plot(ts, tr.vec("contact_f")[m], tr.vec("contact_t")[m], np.full(len(ts), np.nan), tr["patches"][m])
+        if "total_us" in tr.index and len(ts) >= 2:
+            us = tr["total_us"][m]
+            self.plots["rate"].data = (ts, np.where(us > 0, 1e6 / np.maximum(us, 1e-9), np.nan))
         self._display(force=True, plots=False)
 
     def _run_replay(self):
@@ -595,6 +607,10 @@ class Viewer:
                 w = np.array([x[1] for x in h])[sel] if len(t) else np.zeros((0, 6))
                 self._plot(t[sel], w[:, :3], w[:, 3:], np.array([x[2] for x in h])[sel] * 1e3,
                            np.array([x[3] for x in h])[sel])
+                with self.lock:
+                    r = list(self.rates)
+                if len(r) >= 2:
+                    self.plots["rate"].data = (np.array([x[0] for x in r]), np.array([x[1] for x in r]))
 
     def wait(self):
         """Serves until Ctrl-C (or the live session's end)."""

@@ -827,6 +827,59 @@ TEST(DeviceLoop, OutputNeverExceedsTheEnvelopeTimesTheLimit) {
   EXPECT_LE(worst_t, 0.0);
 }
 
+// The same envelope with the virtual device (the viewer's handle) moved on
+// every tick, as a mouse drag does, and the simulation stalling from 0.9 to
+// 1.1 s: soft start, clamp, watchdog ramp and recovery bound every wrench it
+// is given, and the target follows the handle through the workspace map.
+TEST(DeviceLoop, AVirtualDeviceDraggedEveryTickGetsTheSameBounds) {
+  DeviceLoopOptions o;
+  o.soft_start = 0.5;
+  o.watchdog = 0.05;
+  o.watchdog_ramp = 0.01;
+  o.multirate = false;
+  o.map.scale = 1.5;
+  o.map.offset = pose(Vec3(0.01, 0.0, -0.02), Quaterniond(AngleAxisd(deg(20), Vec3::UnitZ())));
+  DeviceInfo info;
+  info.max_force = 4.0;
+  info.max_torque = 0.05;
+  hrt::VirtualDevice dev(Pose{}, info);
+  hrt::ManualClock clock;
+  DeviceLoop loop(dev, o, clock, 4096);
+  double level_at_stall = 0;
+  for (long i = 0; i <= 2000; ++i) {
+    const double a = 0.01 * static_cast<double>(i);
+    const Pose handle = pose(Vec3(0.02 * std::sin(a), 0.01 * std::cos(a), 0.001 * i * 1e-3),
+                             Quaterniond(AngleAxisd(0.3 * std::sin(a), Vec3(0.3, 0.4, 0.5).normalized())));
+    ASSERT_TRUE(dev.set_pose(handle));
+    const bool publishing = i >= 20 && (i < 900 || i >= 1100);
+    if (publishing)
+      loop.publish(command(vec6(100 * std::cos(a), 100 * std::sin(a), -30, std::sin(a), 0.2, std::cos(a))));
+    clock.set(static_cast<double>(i) * 1e-3);
+    loop.tick();
+    const Vec6 out = dev.last_wrench();
+    const double t = static_cast<double>(i) * 1e-3;
+    double envelope;
+    if (i < 20) {
+      envelope = 0;
+    } else if (i < 900 + 50) {
+      envelope = std::clamp((t - 0.02) / 0.5, 0.0, 1.0);
+    } else if (i < 1100) {
+      envelope = std::clamp(1.0 - (t - 0.899 - 0.05) / 0.01, 0.0, 1.0);
+      if (i == 1099) level_at_stall = envelope;
+    } else {
+      envelope = std::clamp((t - 1.1) / 0.5 + level_at_stall, 0.0, 1.0);
+    }
+    ASSERT_LE(worst_norm(out.head<3>()), envelope * 4.0 * (1 + 1e-12)) << "i = " << i;
+    ASSERT_LE(worst_norm(out.tail<3>()), envelope * 0.05 * (1 + 1e-12)) << "i = " << i;
+    if (i >= 40 && i < 900) EXPECT_GT(out.head<3>().norm(), envelope * 4.0 * 0.999) << "i = " << i;
+    DeviceTarget tg;
+    ASSERT_TRUE(loop.target(tg));
+    const Pose want = o.map.to_scene(handle);
+    EXPECT_LE((tg.target.position - want.position).norm(), 1e-15) << "i = " << i;
+  }
+  EXPECT_GE(loop.stats().watchdog_events, 1u);
+}
+
 // 20,000 commands far above a 5 N limit, in directions spread over the
 // sphere and with magnitudes from 5 N to 1e6 N: every written force's norm,
 // computed in every way a reader might, is <= 5 exactly (no 1-ulp overshoot).
