@@ -386,17 +386,21 @@ class Viewer:
                 self.pause_cb = gui.add_checkbox("pause", initial_value=False)
                 b = gui.add_button("sound of the last seconds")
                 b.on_click(lambda _: self._live_sound())
+                # A new clip of the last seconds every SOUND_SECONDS of wall time, played as
+                # it arrives (the page may play sound once it has been clicked).
+                self.live_sound_cb = gui.add_checkbox("sound, live", initial_value=False)
             self.audio = None
 
-    def _audio_html(self, wav: bytes, caption: str):
+    def _audio_html(self, wav: bytes, caption: str, autoplay: bool = False):
         src = "data:audio/wav;base64," + base64.b64encode(wav).decode("ascii")
-        html = f'<div><small>{caption}</small><br><audio id="hbake-audio" controls src="{src}"></audio></div>'
+        play = " autoplay" if autoplay else ""
+        html = f'<div><small>{caption}</small><br><audio id="hbake-audio" controls{play} src="{src}"></audio></div>'
         if getattr(self, "audio", None) is not None:
             self.audio.content = html
         else:
             self.audio = self.server.gui.add_html(html)
 
-    def _live_sound(self):
+    def _live_sound(self, autoplay: bool = False):
         from hbake import sound
         with self.lock:
             h = list(self.history)
@@ -406,7 +410,8 @@ class Viewer:
         m = t >= t[-1] - SOUND_SECONDS
         f = np.array([x[1][:3] for x in h])[m]
         sig = sound.vibration(t[m], f)
-        self._audio_html(sound.wav_bytes(sig), f"the last {t[m][-1] - t[m][0]:.2f} s of the session")
+        self._audio_html(sound.wav_bytes(sig), f"the last {t[m][-1] - t[m][0]:.2f} s of the session "
+                                               f"(to t = {t[-1]:.2f} s)", autoplay)
 
     def _toggle(self, key: str, on: bool):
         with self.server.atomic():
@@ -458,7 +463,11 @@ class Viewer:
         t_wall0 = time.perf_counter()
         t_sim0 = self.last.get("t", 0.0)
         n, t_rate = 0, time.perf_counter()
+        t_sound = time.perf_counter()
         while not self.stop_event.is_set():
+            if self.live_sound_cb.value and time.perf_counter() - t_sound >= SOUND_SECONDS:
+                t_sound = time.perf_counter()
+                self._live_sound(autoplay=True)
             if self.pause_cb.value:
                 time.sleep(0.05)
                 t_wall0, t_sim0 = time.perf_counter(), self.last.get("t", 0.0)

@@ -202,6 +202,22 @@ max_force = 2.0
         for _ in range(250):
             fr = r.step()
         assert fr["frame"] == L["frame"] and np.array_equal(fr["contact"][:3], L["force"])
+        # The sound of the last seconds, asked for in the page: a WAV of the session's
+        # vibration (its samples as hbake/sound.py makes them from the frames shown).
+        driver.execute_script("""
+            Array.from(document.querySelectorAll('button'))
+                .find(b => b.textContent.trim() === 'sound of the last seconds').click();""")
+        t0 = time.time()
+        src = None
+        while time.time() - t0 < 20 and not src:
+            src = driver.execute_script("const a = document.getElementById('hbake-audio'); return a ? a.src : null")
+            time.sleep(0.2)
+        assert src and src.startswith("data:audio/wav;base64,")
+        import base64
+        import wave
+        with wave.open(io.BytesIO(base64.b64decode(src.split(",", 1)[1]))) as w:
+            assert w.getframerate() == 44100 and w.getnchannels() == 1
+            assert abs(w.getnframes() / 44100 - L["t"]) < 0.01   # the whole 0.25 s so far (< 3 s)
         assert _severe(driver) == []
     finally:
         driver.quit()
