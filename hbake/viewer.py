@@ -41,6 +41,7 @@ from hbake.errors import HbakeError, InputInvalidError, InputMissingError
 MM = 1000.0                       # display units per metre
 MAX_SURFACE_TRIANGLES = 400_000   # per object: what a browser draws smoothly on a laptop
 PLOT_SECONDS = 5.0                # width of the live plots
+DEPTH_SERIES = 4                  # patches in the depth plot (the deepest ones)
 DISPLAY_HZ = 30.0                 # scene and GUI updates per second
 SOUND_SECONDS = 3.0               # a live session's sound: the last seconds
 PALETTE = np.array([[230, 159, 0], [86, 180, 233], [0, 158, 115], [240, 228, 66], [0, 114, 178],
@@ -358,15 +359,23 @@ class Viewer:
         self.plots = {
             "force": gui.add_uplot((x0, x0, x0, x0), ({"label": "t (s)"}, {"label": "Fx (N)", "stroke": "red"},
                                    {"label": "Fy", "stroke": "green"}, {"label": "Fz", "stroke": "blue"}),
-                                   title="contact force", aspect=2.0),
+                                   title="contact force", aspect=2.0, scales={"x": {"time": False}}),
             "torque": gui.add_uplot((x0, x0, x0, x0), ({"label": "t (s)"}, {"label": "Tx (N m)", "stroke": "red"},
                                     {"label": "Ty", "stroke": "green"}, {"label": "Tz", "stroke": "blue"}),
-                                    title="contact torque", aspect=2.0),
-            "depth": gui.add_uplot((x0, x0, x0), ({"label": "t (s)"}, {"label": "max delta (mm)", "stroke": "black"},
-                                   {"label": "patches", "stroke": "orange"}), title="depth and patches", aspect=2.0),
+                                    title="contact torque", aspect=2.0, scales={"x": {"time": False}}),
+            "depth": gui.add_uplot(
+                (x0,) * (DEPTH_SERIES + 2),
+                ({"label": "t (s)"},
+                 *({"label": f"delta {k + 1} (mm)" + (" (0: none)" if k else ""), "stroke": s, "scale": "mm"}
+                   for k, s in enumerate(("black", "gray", "teal", "olive")[:DEPTH_SERIES])),
+                 {"label": "patches", "stroke": "orange", "scale": "n"}),
+                scales={"x": {"time": False}, "mm": {"auto": True}, "n": {"auto": True}},
+                axes=({}, {"scale": "mm"}, {"scale": "n", "side": 1}),
+                title="depth per patch (deepest first), patches", aspect=2.0),
             "rate": gui.add_uplot((x0, x0), ({"label": "t (s)"}, {"label": "frames/s", "stroke": "purple"}),
                                   title=("achieved simulation rate" if self.mode == "live"
-                                         else "recorded frame rate if alone (1 / total_us)"), aspect=2.5),
+                                         else "recorded frame rate if alone (1 / total_us)"), aspect=2.5,
+                                  scales={"x": {"time": False}}),
         }
         self.rates: deque = deque()
         if self.mode == "replay":
@@ -453,7 +462,10 @@ class Viewer:
                      "force": np.asarray(fr["contact"][:3]), "torque": np.asarray(fr["contact"][3:]),
                      "device_output": np.asarray(fr["device_output"]), "patches": int(fr["patches"]),
                      "contacts": c}
-        d = float(np.max(c["delta"])) if len(c["delta"]) else float("nan")
+        # 0 where there are fewer patches: uPlot's ranges do not skip NaN.
+        d = np.zeros(DEPTH_SERIES)
+        deepest = np.sort(np.asarray(c["delta"], float))[::-1][:DEPTH_SERIES]
+        d[:len(deepest)] = deepest
         with self.lock:
             self.history.append((self.last["t"], np.asarray(fr["contact"]), d, self.last["patches"]))
             while self.history and self.history[0][0] < self.last["t"] - max(PLOT_SECONDS, SOUND_SECONDS):
@@ -516,10 +528,12 @@ class Viewer:
         t0 = t - PLOT_SECONDS
         m = (tr["t"] >= t0) & (np.arange(len(tr)) <= k)
         ts = tr["t"][m]
-        self._plot(ts, tr.vec("contact_f")[m], tr.vec("contact_t")[m], np.full(len(ts), np.nan), tr["patches"][m])
+        # A trace records no depths: the plot shows the patch count.
+        self._plot(ts, tr.vec("contact_f")[m], tr.vec("contact_t")[m], np.zeros((len(ts), DEPTH_SERIES)),
+                   tr["patches"][m])
         if "total_us" in tr.index and len(ts) >= 2:
             us = tr["total_us"][m]
-            self.plots["rate"].data = (ts, np.where(us > 0, 1e6 / np.maximum(us, 1e-9), np.nan))
+            self.plots["rate"].data = (ts, np.where(us > 0, 1e6 / np.maximum(us, 1e-9), 0.0))
         self._display(force=True, plots=False)
 
     def _run_replay(self):
@@ -547,7 +561,8 @@ class Viewer:
             return
         self.plots["force"].data = (t, f[:, 0], f[:, 1], f[:, 2])
         self.plots["torque"].data = (t, tq[:, 0], tq[:, 1], tq[:, 2])
-        self.plots["depth"].data = (t, np.asarray(depth, float), np.asarray(patches, float))
+        depth = np.asarray(depth, float).reshape(len(t), -1)
+        self.plots["depth"].data = (t, *(depth[:, k] for k in range(DEPTH_SERIES)), np.asarray(patches, float))
 
     def _display(self, force: bool = False, plots: bool = True):
         if not self.last:
