@@ -29,7 +29,6 @@ import base64
 import math
 import threading
 import time
-import tomllib
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -232,8 +231,13 @@ class Viewer:
         self.force_scale = force_scale if force_scale is not None else 0.25 * size * MM   # mm per N
         self.torque_scale = torque_scale if torque_scale is not None else 5.0 * size * MM  # mm per N m
 
+        if self.mode in ("live", "replay"):
+            try:
+                import hrt
+            except ImportError:
+                raise HbakeError("a session needs the runtime's Python module hrt, which is not installed "
+                                 "(make setup builds it; pip install . installs it)", 1) from None
         if self.mode == "live":
-            import hrt
             try:
                 # No trace (the file's would be overwritten by an hour of dragging) and no
                 # frames kept (the page keeps the last seconds).
@@ -244,7 +248,6 @@ class Viewer:
             self.virtual = not play
         if self.mode == "replay":
             from hbake.plot import Trace
-            import hrt
             self.trace = Trace(trace)
             models = [hrt.load_bundle(str(o["bundle"]), verify_hashes=False) for o in self.objects]
             opts = {k: self.force_table[k] for k in ("resolution", "stiffness", "heights") if k in self.force_table}
@@ -256,7 +259,7 @@ class Viewer:
         self._build_gui()
         if self.mode == "live":
             self._frame_dict(self.runner.step())
-            self._display(force=True)
+            self._display()
             if realtime:
                 self._thread = threading.Thread(target=self._run_live, name="hbake-view-session", daemon=True)
                 self._thread.start()
@@ -450,7 +453,7 @@ class Viewer:
             if fr is None:
                 break
             self._frame_dict(fr)
-        self._display(force=True)
+        self._display()
         return self.last
 
     def _frame_dict(self, fr):
@@ -534,7 +537,7 @@ class Viewer:
         if "total_us" in tr.index and len(ts) >= 2:
             us = tr["total_us"][m]
             self.plots["rate"].data = (ts, np.where(us > 0, 1e6 / np.maximum(us, 1e-9), 0.0))
-        self._display(force=True, plots=False)
+        self._display(plots=False)
 
     def _run_replay(self):
         t_prev = time.perf_counter()
@@ -564,7 +567,7 @@ class Viewer:
         depth = np.asarray(depth, float).reshape(len(t), -1)
         self.plots["depth"].data = (t, *(depth[:, k] for k in range(DEPTH_SERIES)), np.asarray(patches, float))
 
-    def _display(self, force: bool = False, plots: bool = True):
+    def _display(self, plots: bool = True):
         if not self.last:
             return
         self._last_display = time.perf_counter()
