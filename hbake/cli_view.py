@@ -1,6 +1,7 @@
 """``hbake view``: the command over hbake.viewer (docs/viewer.md)."""
 from __future__ import annotations
 
+import signal
 import sys
 import webbrowser
 from pathlib import Path
@@ -36,7 +37,8 @@ def view_command(target, trace, play, host, port, duration, max_triangles, force
     """Show TARGET in the browser: a bundle (BUNDLE.hbundle), a live session of a scene file
     (SCENE.toml, the probe moved with the mouse), or with --trace a recorded session.
 
-    Serves until Ctrl-C. Exit codes: 0 ok, 2 bad option, 3 input missing, 4 input invalid.
+    Serves until Ctrl-C or SIGTERM (exit 0). Exit codes: 0 ok, 2 bad option, 3 input missing,
+    4 input invalid.
     """
     from hbake.viewer import Viewer
 
@@ -51,6 +53,9 @@ def view_command(target, trace, play, host, port, duration, max_triangles, force
         click.echo(f"hbake: error: {exc}", err=True)
         sys.exit(exc.exit_code)
     click.echo(f"hbake view: {v.mode} at {v.url} (Ctrl-C to stop)", err=True)
+    # Ctrl-C and SIGTERM stop the server the same way (exit 0: stopping is how it ends).
+    signal.signal(signal.SIGINT, lambda *_: v.stop_event.set())
+    signal.signal(signal.SIGTERM, lambda *_: v.stop_event.set())
     if open_browser:
         webbrowser.open(v.url)
     try:

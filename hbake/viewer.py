@@ -151,6 +151,8 @@ class ObjectView:
 def load_object(name: str, bundle: Path, max_triangles: int = MAX_SURFACE_TRIANGLES) -> ObjectView:
     from hbake.bundle import BundleError, read_bundle
 
+    if not Path(bundle).exists():
+        raise InputMissingError(f"{bundle}: no such bundle")
     try:
         b = read_bundle(bundle, verify=False)
     except BundleError as exc:

@@ -249,3 +249,39 @@ def test_replay_page_shows_the_trace_frame_and_its_sound(tmp_path):
     finally:
         driver.quit()
         v.close()
+
+
+def test_the_command_serves_until_sigterm_and_refuses_bad_input(tmp_path):
+    """`hbake view`: one line and a distinct exit for bad input; the page served (the
+    client's index.html, from the installed viser: no network), exit 0 on SIGTERM."""
+    import signal
+    import subprocess
+    import urllib.request
+
+    exe = str(REPO / ".venv" / "bin" / "hbake")
+    r = subprocess.run([exe, "view", str(tmp_path / "none.toml")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 3 and r.stderr.count("\n") == 1 and "none.toml" in r.stderr
+    r = subprocess.run([exe, "view", str(GOLDEN / "pebble.hbundle"), "--trace", str(DATA / "press.trace.csv")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "pebble.hbundle" in r.stderr
+    bad = tmp_path / "bad.toml"
+    scene = (DATA / "press.toml").read_text().replace("../../golden", str(GOLDEN))
+    bad.write_text(scene.replace("[run]", "[run]\nspeed = 3", 1))
+    r = subprocess.run([exe, "view", str(bad)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 4 and r.stderr.count("\n") == 1 and "run.speed" in r.stderr, r.stderr
+    bad.write_text(scene.replace("pebble.hbundle", "nothing.hbundle"))
+    r = subprocess.run([exe, "view", str(bad)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 3 and r.stderr.count("\n") == 1 and "nothing.hbundle" in r.stderr, r.stderr
+    p = subprocess.Popen([exe, "view", str(DATA / "press.toml"), "--trace", str(DATA / "press.trace.csv"),
+                          "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = p.stderr.readline()
+        m = re.search(r"replay at (http://127\.0\.0\.1:\d+/)", line)
+        assert m, line
+        html = urllib.request.urlopen(m.group(1), timeout=30).read()
+        assert b"<html" in html.lower() and b"https://" not in html   # the built client, nothing fetched
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(timeout=30) == 0
+    finally:
+        if p.poll() is None:
+            p.kill()
