@@ -26,7 +26,7 @@ from hbake.errors import HbakeError
 @click.option("--duration", type=click.FloatRange(min=0.001), default=3600.0, show_default=True, metavar="S",
               help="Live: length of the session (session time, s).")
 @click.option("--max-triangles", type=click.IntRange(min=1000), default=400_000, show_default=True,
-              help="Most triangles of each object's reconstructed surface (the atlas read with a stride).")
+              help="Most triangles of each object's reconstructed surface (each coarse triangle cut into k x k).")
 @click.option("--force-scale", type=click.FloatRange(min=0, min_open=True), metavar="MM_PER_N",
               help="Length of the force arrow per newton, mm [default: a quarter of the scene's size per N].")
 @click.option("--torque-scale", type=click.FloatRange(min=0, min_open=True), metavar="MM_PER_NM",

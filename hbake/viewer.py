@@ -71,45 +71,73 @@ def rotate(q_xyzw, p) -> np.ndarray:
 # ----------------------------------------------------------------------------
 
 
-def surface_mesh(atlas: np.ndarray, max_triangles: int = MAX_SURFACE_TRIANGLES):
-    """The full surface the atlas reconstructs, as a triangle mesh (vertices in metres,
-    object frame; faces). Each atlas quad (texels (i, j) .. (i + s, j + s), stride s chosen
-    so that at most ``max_triangles`` remain) becomes two triangles on the texels'
-    positions when its four texels are finite, at least two are covered (A = 1; the
-    others are the gutter's extrapolated copies, which close the seams between charts) and
-    no edge is longer than 4 times the median: a quad spanning two charts' far-apart
-    texels is not drawn."""
-    H, W = atlas.shape[:2]
-    pos = atlas[..., :3].astype(np.float64)
-    cov = atlas[..., 3] > 0.5
-    fin = np.all(np.isfinite(pos), axis=-1)
-    n_quads = max(1, int(np.count_nonzero(cov)))
-    s = max(1, int(math.ceil(math.sqrt(2.0 * n_quads / max_triangles))))
-    rows, cols = np.arange(0, H, s), np.arange(0, W, s)
-    P = pos[np.ix_(rows, cols)]
-    C = cov[np.ix_(rows, cols)]
-    F = fin[np.ix_(rows, cols)]
-    h, w = C.shape
-    idx = np.arange(h * w).reshape(h, w)
-    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    Pf = P.reshape(-1, 3)
-    ok = (F[:-1, :-1] & F[:-1, 1:] & F[1:, :-1] & F[1:, 1:])
-    ncov = (C[:-1, :-1].astype(int) + C[:-1, 1:] + C[1:, :-1] + C[1:, 1:])
-    ok &= ncov >= 2
-    a, b, c, d = a[ok], b[ok], c[ok], d[ok]
-    if len(a) == 0:
+def surface_mesh(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray, atlas: np.ndarray,
+                 max_triangles: int = MAX_SURFACE_TRIANGLES):
+    """The full surface the atlas reconstructs, as a closed triangle mesh (vertices in
+    metres, object frame; faces): what a GPU does with displacement mapping. Each coarse
+    triangle is cut into k x k small ones on a barycentric grid, and each grid point is moved
+    to the atlas's bilinear lookup at its UV (the point of the full surface the runtime reads
+    there, docs/bundle-format.md). Grid points on a coarse edge are shared by the two faces
+    of the edge (taken from the first), so the mesh has no crack at a chart's seam. k is the
+    largest that keeps the count within ``max_triangles`` (k^2 per face), and at most the
+    coarse triangles' longest UV edge in texels (finer would only interpolate)."""
+    from hbake.bundle import atlas_lookup
+
+    v = np.asarray(vertices, float)
+    f = np.asarray(faces, np.int64)
+    uv = np.asarray(uvs, np.float64)
+    F = len(f)
+    if F == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    e = np.stack([np.linalg.norm(Pf[a] - Pf[b], axis=1), np.linalg.norm(Pf[a] - Pf[c], axis=1),
-                  np.linalg.norm(Pf[b] - Pf[d], axis=1), np.linalg.norm(Pf[c] - Pf[d], axis=1),
-                  np.linalg.norm(Pf[a] - Pf[d], axis=1) / math.sqrt(2)], axis=1)
-    med = float(np.median(e[:, :4]))
-    keep = np.max(e, axis=1) <= 4.0 * med if med > 0 else np.ones(len(a), bool)
-    a, b, c, d = a[keep], b[keep], c[keep], d[keep]
-    # Atlas rows go down (row 0 = top, v up): (a, c, b) and (b, c, d) wind like the
-    # coarse triangles' UVs, counter-clockwise seen from outside.
-    faces = np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
-    used, inv = np.unique(faces, return_inverse=True)
-    return Pf[used], inv.reshape(-1, 3).astype(np.int64)
+    H, W = atlas.shape[:2]
+    tex = uv * np.array([W, H])
+    edge = np.max(np.linalg.norm(tex - np.roll(tex, 1, axis=1), axis=2), axis=1)
+    k = int(max(1, min(math.floor(math.sqrt(max_triangles / F)), math.ceil(float(np.max(edge))))))
+    I, J = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
+    inside = I + J <= k
+    I, J = I[inside], J[inside]                       # grid points: weight I / k on corner 1, J / k on 2
+    P = len(I)
+    w = np.stack([k - I - J, I, J], axis=1) / k       # (P, 3) barycentric weights
+    pts_uv = np.einsum("pc,fcd->fpd", w, uv)          # (F, P, 2)
+    pos = atlas_lookup(atlas, pts_uv.reshape(-1, 2))[:, :3]
+    # Keys that are equal for the same point of the coarse mesh seen from two faces:
+    # a corner is its vertex; a point of an edge is (lower vertex, higher vertex, steps from
+    # the lower); an interior point is its face's own.
+    va, vb, vc = f[:, 0:1], f[:, 1:2], f[:, 2:3]
+    a, b, c = (k - I - J)[None, :], I[None, :], J[None, :]
+    key = np.empty((F, P, 3), dtype=np.int64)
+    key[:] = np.stack([-1 - np.arange(F)[:, None] + 0 * a, np.broadcast_to(np.arange(P), (F, P)),
+                       np.zeros((F, P), np.int64)], axis=2)
+
+    def on_edge(mask, x, y, tx):  # points with weight only on corners x, y; tx = steps from x
+        lo, hi = np.minimum(x, y), np.maximum(x, y)
+        t = np.where(x <= y, tx, k - tx)
+        sel = np.broadcast_to(mask, (F, P))
+        for d, val in enumerate((lo, hi, t)):
+            key[..., d] = np.where(sel, np.broadcast_to(val, (F, P)), key[..., d])
+
+    on_edge(a == 0, vb, vc, c)        # edge 1-2: steps from corner 1 = J
+    on_edge(b == 0, va, vc, c)        # edge 0-2: steps from corner 0 = J
+    on_edge(c == 0, va, vb, b)        # edge 0-1: steps from corner 0 = I
+    for corner, vx in ((a == k, va), (b == k, vb), (c == k, vc)):
+        sel = np.broadcast_to(corner, (F, P))
+        for d, val in enumerate((vx, vx, 0 * vx)):
+            key[..., d] = np.where(sel, np.broadcast_to(val, (F, P)), key[..., d])
+    _, first, inv = np.unique(key.reshape(-1, 3), axis=0, return_index=True, return_inverse=True)
+    verts = pos[first]
+    index = inv.reshape(F, P)
+    # Small triangles of the grid, wound like their face: (i, j), (i + 1, j), (i, j + 1)
+    # and (i + 1, j), (i + 1, j + 1), (i, j + 1).
+    at = -np.ones((k + 1, k + 1), dtype=np.int64)
+    at[I, J] = np.arange(P)
+    ti, tj = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    up = ti + tj <= k - 1
+    down = ti + tj <= k - 2
+    tri = np.concatenate([
+        np.stack([at[ti[up], tj[up]], at[ti[up] + 1, tj[up]], at[ti[up], tj[up] + 1]], axis=1),
+        np.stack([at[ti[down] + 1, tj[down]], at[ti[down] + 1, tj[down] + 1], at[ti[down], tj[down] + 1]], axis=1)])
+    out_faces = index[:, tri].reshape(-1, 3)
+    return verts, out_faces
 
 
 def chart_ids(faces: np.ndarray, uvs: np.ndarray) -> np.ndarray:
@@ -162,7 +190,7 @@ def load_object(name: str, bundle: Path, max_triangles: int = MAX_SURFACE_TRIANG
     v, f = np.asarray(b.coarse_vertices, float), np.asarray(b.coarse_faces, np.int64)
     pieces = [(np.asarray(pv, float), np.asarray(pf, np.int64)) for pv, pf in zip(b.piece_vertices, b.piece_faces)]
     com = np.asarray(b.manifest.get("mass", {}).get("center_of_mass", v.mean(axis=0)), float)
-    return ObjectView(name=name, bundle=Path(bundle), surface=surface_mesh(b.atlas, max_triangles),
+    return ObjectView(name=name, bundle=Path(bundle), surface=surface_mesh(v, f, b.coarse_uvs, b.atlas, max_triangles),
                       coarse=(v, f), charts=chart_ids(f, b.coarse_uvs), pieces=pieces, center_of_mass=com,
                       radius=float(np.max(np.linalg.norm(v - v.mean(axis=0), axis=1))))
 
