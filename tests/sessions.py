@@ -50,30 +50,30 @@ BLOCK = (12 * MM, 8 * MM, 4 * MM)
 SLAB = (160 * MM, 60 * MM, 6 * MM)
 
 
-def strip_height(x, y):
+def grating_height(x, y, wavelength=STRIP_L, amplitude=STRIP_A):
+    """Height of a strip grating: ridges at STRIP_ANGLE to x on a STRIP_THICK slab."""
     a = math.radians(STRIP_ANGLE)
     s = np.asarray(x) * math.cos(a) + np.asarray(y) * math.sin(a)
-    return STRIP_THICK + STRIP_A * np.sin(2 * np.pi * s / STRIP_L)
+    return STRIP_THICK + amplitude * np.sin(2 * np.pi * s / wavelength)
+
+
+def strip_height(x, y):
+    return grating_height(x, y)
+
+
+def make_grating_strip(size, cell, wavelength, amplitude) -> trimesh.Trimesh:
+    xs = np.linspace(0.0, size[0], int(round(size[0] / cell)) + 1)
+    ys = np.linspace(0.0, size[1], int(round(size[1] / cell)) + 1)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    return P._finish(P._heightfield_block(xs, ys, grating_height(X, Y, wavelength, amplitude), np.zeros_like(X)))
 
 
 def make_strip() -> trimesh.Trimesh:
-    xs = np.linspace(0.0, STRIP_SIZE[0], int(round(STRIP_SIZE[0] / STRIP_CELL)) + 1)
-    ys = np.linspace(0.0, STRIP_SIZE[1], int(round(STRIP_SIZE[1] / STRIP_CELL)) + 1)
-    X, Y = np.meshgrid(xs, ys, indexing="ij")
-    return P._finish(P._heightfield_block(xs, ys, strip_height(X, Y), np.zeros_like(X)))
-
-
-def fine_strip_height(x, y):
-    a = math.radians(STRIP_ANGLE)
-    s = np.asarray(x) * math.cos(a) + np.asarray(y) * math.sin(a)
-    return STRIP_THICK + FINE_A * np.sin(2 * np.pi * s / FINE_L)
+    return make_grating_strip(STRIP_SIZE, STRIP_CELL, STRIP_L, STRIP_A)
 
 
 def make_fine_strip() -> trimesh.Trimesh:
-    xs = np.linspace(0.0, FINE_SIZE[0], int(round(FINE_SIZE[0] / FINE_CELL)) + 1)
-    ys = np.linspace(0.0, FINE_SIZE[1], int(round(FINE_SIZE[1] / FINE_CELL)) + 1)
-    X, Y = np.meshgrid(xs, ys, indexing="ij")
-    return P._finish(P._heightfield_block(xs, ys, fine_strip_height(X, Y), np.zeros_like(X)))
+    return make_grating_strip(FINE_SIZE, FINE_CELL, FINE_L, FINE_A)
 
 
 def make_tip() -> trimesh.Trimesh:

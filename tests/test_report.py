@@ -5,7 +5,6 @@ decoded (naturalWidth > 0), and every figure on the page equals the manifest's v
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -13,10 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import browser
 from test_batch import LOW, blob, one_error_line, run
 
-CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 
 
 @pytest.fixture(scope="session")
@@ -93,20 +91,7 @@ def test_report_user_errors(baked, tmp_path, report_dir):
 
 
 def _browser():
-    if not (os.path.exists(CHROMEDRIVER) and os.path.exists(CHROMIUM)):
-        if os.environ.get("CI"):
-            pytest.fail("chromium and chromium-driver are not installed (make setup installs them)")
-        pytest.skip("chromium / chromium-driver not installed")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = CHROMIUM
-    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-              "--window-size=1200,900"):
-        opts.add_argument(a)
-    # An explicit driver path: selenium then never tries to download one.
-    return webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=opts)
+    return browser.chromium()
 
 
 def test_report_page_in_headless_chromium(report_dir, baked, tmp_path):

@@ -18,40 +18,24 @@ kinds in tests/test_run_safety.py.
 from __future__ import annotations
 
 import io
-import os
 import re
-import shutil
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import browser
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data" / "viewer"
 GOLDEN = REPO / "tests" / "golden"
-CHROMEDRIVER = shutil.which("chromedriver") or "/usr/bin/chromedriver"
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 
 hrt = pytest.importorskip("hrt")
 
 
 def _browser():
-    if not (os.path.exists(CHROMEDRIVER) and os.path.exists(CHROMIUM)):
-        if os.environ.get("CI"):
-            pytest.fail("chromium and chromium-driver are not installed (make setup installs them)")
-        pytest.skip("chromium / chromium-driver not installed")
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = CHROMIUM
-    # WebGL on the CPU (SwiftShader): the page's canvas is three.js.
-    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1200,900",
-              "--use-angle=swiftshader", "--enable-unsafe-swiftshader"):
-        opts.add_argument(a)
-    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    return webdriver.Chrome(service=Service(executable_path=CHROMEDRIVER), options=opts)
+    return browser.chromium(webgl=True, console=True)
 
 
 def _open(driver, url: str, want: str | None = None, timeout: float = 60.0):

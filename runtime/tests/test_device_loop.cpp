@@ -783,6 +783,27 @@ double worst_norm(const Vec3& v) {
 // of 8 mN per tick). The same after a watchdog stall and its recovery (the
 // ramp restarts from the level it left), and down the watchdog ramp, where
 // the rate limit would let the output fall slower than the bound.
+// The stall scenario of the two envelope tests below (1 ms ticks i): commands
+// far above a 4 N / 0.05 N m limit turning slowly (a = 0.01 i), published from
+// 20 ms on except from 0.9 to 1.1 s (a stall); a soft start of 0.5 s, a
+// 50 ms watchdog ramping out over 10 ms. stall_envelope is the bound's factor
+// at tick i (level: the factor the stall left, updated at tick 1099).
+bool stall_publishing(long i) { return i >= 20 && (i < 900 || i >= 1100); }
+DeviceCommand stall_command(double a) {
+  return command(vec6(100 * std::cos(a), 100 * std::sin(a), -30, std::sin(a), 0.2, std::cos(a)));
+}
+double stall_envelope(long i, double& level) {
+  const double t = static_cast<double>(i) * 1e-3;
+  if (i < 20) return 0;
+  if (i < 900 + 50) return std::clamp((t - 0.02) / 0.5, 0.0, 1.0);  // soft start, held until the watchdog
+  if (i < 1100) {  // last command at 899 ms: stalled at 949 ms, ramped out by 959 ms
+    const double e = std::clamp(1.0 - (t - 0.899 - 0.05) / 0.01, 0.0, 1.0);
+    if (i == 1099) level = e;
+    return e;
+  }
+  return std::clamp((t - 1.1) / 0.5 + level, 0.0, 1.0);  // recovery from the level it had: a soft start
+}
+
 TEST(DeviceLoop, OutputNeverExceedsTheEnvelopeTimesTheLimit) {
   DeviceLoopOptions o;
   o.soft_start = 0.5;
@@ -797,22 +818,10 @@ TEST(DeviceLoop, OutputNeverExceedsTheEnvelopeTimesTheLimit) {
   double level_at_stall = 0;
   for (long i = 0; i <= 2000; ++i) {
     const double a = 0.01 * static_cast<double>(i);  // turning slowly enough for the rate limit
-    const bool publishing = i >= 20 && (i < 900 || i >= 1100);
-    if (publishing)
-      rig.loop->publish(command(vec6(100 * std::cos(a), 100 * std::sin(a), -30, std::sin(a), 0.2, std::cos(a))));
+    if (stall_publishing(i)) rig.loop->publish(stall_command(a));
     const Vec6 out = rig.tick(i);
     const double t = static_cast<double>(i) * 1e-3;
-    double envelope;
-    if (i < 20) {
-      envelope = 0;
-    } else if (i < 900 + 50) {  // soft start from 20 ms, then held until the watchdog fires
-      envelope = std::clamp((t - 0.02) / 0.5, 0.0, 1.0);
-    } else if (i < 1100) {  // last command at 899 ms: stalled at 949 ms, ramped out by 959 ms
-      envelope = std::clamp(1.0 - (t - 0.899 - 0.05) / 0.01, 0.0, 1.0);
-      if (i == 1099) level_at_stall = envelope;
-    } else {  // recovery at 1.1 s from the level it had (zero): a soft start again
-      envelope = std::clamp((t - 1.1) / 0.5 + level_at_stall, 0.0, 1.0);
-    }
+    const double envelope = stall_envelope(i, level_at_stall);
     worst_f = std::max(worst_f, worst_norm(out.head<3>()) - envelope * 4.0 * (1 + 1e-12));
     worst_t = std::max(worst_t, worst_norm(out.tail<3>()) - envelope * 0.05 * (1 + 1e-12));
     EXPECT_LE(worst_norm(out.head<3>()), envelope * 4.0 * (1 + 1e-12)) << "i = " << i;
@@ -851,24 +860,12 @@ TEST(DeviceLoop, AVirtualDeviceDraggedEveryTickGetsTheSameBounds) {
     const Pose handle = pose(Vec3(0.02 * std::sin(a), 0.01 * std::cos(a), 0.001 * i * 1e-3),
                              Quaterniond(AngleAxisd(0.3 * std::sin(a), Vec3(0.3, 0.4, 0.5).normalized())));
     ASSERT_TRUE(dev.set_pose(handle));
-    const bool publishing = i >= 20 && (i < 900 || i >= 1100);
-    if (publishing)
-      loop.publish(command(vec6(100 * std::cos(a), 100 * std::sin(a), -30, std::sin(a), 0.2, std::cos(a))));
+    if (stall_publishing(i)) loop.publish(stall_command(a));
     clock.set(static_cast<double>(i) * 1e-3);
     loop.tick();
     const Vec6 out = dev.last_wrench();
     const double t = static_cast<double>(i) * 1e-3;
-    double envelope;
-    if (i < 20) {
-      envelope = 0;
-    } else if (i < 900 + 50) {
-      envelope = std::clamp((t - 0.02) / 0.5, 0.0, 1.0);
-    } else if (i < 1100) {
-      envelope = std::clamp(1.0 - (t - 0.899 - 0.05) / 0.01, 0.0, 1.0);
-      if (i == 1099) level_at_stall = envelope;
-    } else {
-      envelope = std::clamp((t - 1.1) / 0.5 + level_at_stall, 0.0, 1.0);
-    }
+    const double envelope = stall_envelope(i, level_at_stall);
     ASSERT_LE(worst_norm(out.head<3>()), envelope * 4.0 * (1 + 1e-12)) << "i = " << i;
     ASSERT_LE(worst_norm(out.tail<3>()), envelope * 0.05 * (1 + 1e-12)) << "i = " << i;
     if (i >= 40 && i < 900) EXPECT_GT(out.head<3>().norm(), envelope * 4.0 * 0.999) << "i = " << i;
