@@ -381,6 +381,12 @@ def plot_trace(trace: Path, figures=DEFAULT_FIGURES, out: Path | None = None, sc
     if "scene" in figures and scene is None:
         raise HbakeError(f"{trace}: --figure scene needs --scene SCENE.toml (the objects and their bundles)", 2)
     stem = trace.stem
+    # Nothing is written over an input: a trace named like one of the outputs
+    # (x.wav, x.fig7.png) in the output folder would be replaced by it.
+    inputs = [trace.resolve()] + ([Path(scene).resolve()] if scene is not None else [])
+    for p in [out / f"{stem}.{name}.png" for name in figures] + ([out / f"{stem}.wav"] if audio else []):
+        if p.resolve() in inputs:
+            raise OutputUnwritableError(f"{p}: an output of hbake plot would overwrite this input (choose another -o)")
     paths = []
     for name in figures:
         path = out / f"{stem}.{name}.png"

@@ -91,3 +91,24 @@ def test_vibration_of_a_known_signal():
     fr = np.fft.rfftfreq(16 * len(mid), 1 / 44100)
     assert abs(fr[np.argmax(F)] - 150.0) < 1.0
     assert np.all(vibration(t, np.ones((len(t), 3))) == 0)       # a constant force is silent
+
+
+def test_the_sound_never_overwrites_its_trace(tmp_path):
+    """A trace named like the WAV it would make (x.wav) in the output folder: exit 6 with
+    one line, the trace unchanged and nothing written; elsewhere (-o) the WAV is made."""
+    import shutil
+
+    src = REPO / "tests" / "data" / "viewer" / "press.trace.csv"
+    trace = tmp_path / "x.wav"
+    shutil.copy(src, trace)
+    exe = str(REPO / ".venv" / "bin" / "hbake")
+    res = subprocess.run([exe, "plot", str(trace), "--audio"], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 6 and res.stderr.count("\n") == 1 and "x.wav" in res.stderr, res.stderr
+    assert trace.read_bytes() == src.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.wav"]
+    res = subprocess.run([exe, "plot", str(trace), "--audio", "--figure", "fig7", "-o", str(tmp_path / "o")],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    from hbake.sound import read_wav
+    x, rate = read_wav(tmp_path / "o" / "x.wav")
+    assert rate == 44100 and len(x) > 0.29 * rate
