@@ -233,7 +233,10 @@ def fig9(tr: Trace, path: Path, title: str | None = None) -> Path:
 # ----------------------------------------------------------------------------
 
 
-def _scene_objects(scene: Path):
+def scene_objects(scene: Path):
+    """The objects of a scene file (name, bundle, initial position and orientation,
+    trajectory) and its [force] table, paths resolved against the file's folder
+    (docs/scene-format.md). Only what the pictures need is read: `hrt run` checks the rest."""
     try:
         with open(scene, "rb") as fh:
             doc = tomllib.load(fh)
@@ -256,7 +259,7 @@ def _scene_objects(scene: Path):
     return out, force
 
 
-def _trajectory_pose(path: Path, t: float):
+def trajectory_pose(path: Path, t: float):
     """Linear interpolation of a trajectory's position, nlerp of its quaternion at t
     (the picture needs no slerp's exactness)."""
     rows = [r for r in open(path).read().splitlines() if r.strip() and not r.lstrip().startswith("#")]
@@ -287,13 +290,13 @@ def scene_picture(tr: Trace, scene: Path, frame: int, path: Path, hrt: str | Non
     plt = _pyplot()
     from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
-    objs, force = _scene_objects(Path(scene))
+    objs, force = scene_objects(Path(scene))
     frames = tr.frames()
     k = int(np.argmin(np.abs(frames - frame)))
     t = float(tr["t"][k])
     poses = [(tr.vec("probe_")[k], tr.vec("probe_", ("qx", "qy", "qz", "qw"))[k])]
     for o in objs[1:]:
-        poses.append(_trajectory_pose(o["trajectory"], t) if o["trajectory"] else (o["position"], o["orientation"]))
+        poses.append(trajectory_pose(o["trajectory"], t) if o["trajectory"] else (o["position"], o["orientation"]))
     cmd = [_hrt(hrt), "query", *[str(o["bundle"]) for o in objs], "--json", "--no-verify-hashes",
            "--pose-a", *[repr(float(x)) for x in (*poses[0][0], *poses[0][1])]]
     for p, q in poses[1:]:

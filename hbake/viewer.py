@@ -71,8 +71,7 @@ def rotate(q_xyzw, p) -> np.ndarray:
 # ----------------------------------------------------------------------------
 
 
-def surface_mesh(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray, atlas: np.ndarray,
-                 max_triangles: int = MAX_SURFACE_TRIANGLES):
+def surface_mesh(faces: np.ndarray, uvs: np.ndarray, atlas: np.ndarray, max_triangles: int = MAX_SURFACE_TRIANGLES):
     """The full surface the atlas reconstructs, as a closed triangle mesh (vertices in
     metres, object frame; faces): what a GPU does with displacement mapping. Each coarse
     triangle is cut into k x k small ones on a barycentric grid, and each grid point is moved
@@ -83,7 +82,6 @@ def surface_mesh(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray, atlas
     coarse triangles' longest UV edge in texels (finer would only interpolate)."""
     from hbake.bundle import atlas_lookup
 
-    v = np.asarray(vertices, float)
     f = np.asarray(faces, np.int64)
     uv = np.asarray(uvs, np.float64)
     F = len(f)
@@ -105,9 +103,9 @@ def surface_mesh(vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray, atlas
     # the lower); an interior point is its face's own.
     va, vb, vc = f[:, 0:1], f[:, 1:2], f[:, 2:3]
     a, b, c = (k - I - J)[None, :], I[None, :], J[None, :]
-    key = np.empty((F, P, 3), dtype=np.int64)
-    key[:] = np.stack([-1 - np.arange(F)[:, None] + 0 * a, np.broadcast_to(np.arange(P), (F, P)),
-                       np.zeros((F, P), np.int64)], axis=2)
+    key = np.zeros((F, P, 3), dtype=np.int64)
+    key[..., 0] = -1 - np.arange(F)[:, None]          # interior: (-1 - face, point, 0)
+    key[..., 1] = np.arange(P)[None, :]
 
     def on_edge(mask, x, y, tx):  # points with weight only on corners x, y; tx = steps from x
         lo, hi = np.minimum(x, y), np.maximum(x, y)
@@ -190,7 +188,7 @@ def load_object(name: str, bundle: Path, max_triangles: int = MAX_SURFACE_TRIANG
     v, f = np.asarray(b.coarse_vertices, float), np.asarray(b.coarse_faces, np.int64)
     pieces = [(np.asarray(pv, float), np.asarray(pf, np.int64)) for pv, pf in zip(b.piece_vertices, b.piece_faces)]
     com = np.asarray(b.manifest.get("mass", {}).get("center_of_mass", v.mean(axis=0)), float)
-    return ObjectView(name=name, bundle=Path(bundle), surface=surface_mesh(v, f, b.coarse_uvs, b.atlas, max_triangles),
+    return ObjectView(name=name, bundle=Path(bundle), surface=surface_mesh(f, b.coarse_uvs, b.atlas, max_triangles),
                       coarse=(v, f), charts=chart_ids(f, b.coarse_uvs), pieces=pieces, center_of_mass=com,
                       radius=float(np.max(np.linalg.norm(v - v.mean(axis=0), axis=1))))
 
@@ -200,19 +198,12 @@ def load_object(name: str, bundle: Path, max_triangles: int = MAX_SURFACE_TRIANG
 # ----------------------------------------------------------------------------
 
 
-def read_scene(scene: Path):
-    """The objects of a scene file (name, bundle, initial pose, trajectory) and its
-    [force] table, paths resolved against the file's folder (docs/scene-format.md)."""
-    from hbake.plot import _scene_objects
-
-    return _scene_objects(Path(scene))
-
-
 def object_pose_at(obj: dict, t: float):
-    from hbake.plot import _trajectory_pose
+    """Position and quaternion of a scene object (hbake.plot.scene_objects) at time t."""
+    from hbake.plot import trajectory_pose
 
     if obj["trajectory"]:
-        return _trajectory_pose(obj["trajectory"], t)
+        return trajectory_pose(obj["trajectory"], t)
     return obj["position"], obj["orientation"]
 
 
@@ -254,7 +245,9 @@ class Viewer:
         else:
             if not target.exists():
                 raise InputMissingError(f"{target}: no such scene file or bundle")
-            self.objects, self.force_table = read_scene(target)
+            from hbake.plot import scene_objects
+
+            self.objects, self.force_table = scene_objects(target)
             self.mode = "replay" if trace is not None else "live"
         self.views = [load_object(o["name"], o["bundle"], max_triangles) for o in self.objects]
         size = max(v.radius for v in self.views) * 2
@@ -570,23 +563,28 @@ class Viewer:
         self._display(plots=False)
 
     def _run_replay(self):
+        """Play: the replay's session time advances by the wall time times the speed; the
+        frame shown is the last one at or before it; at the end it starts over."""
+        t = self.trace["t"]
         t_prev = time.perf_counter()
+        t_play = None
         while not self.stop_event.is_set():
             time.sleep(1.0 / DISPLAY_HZ)
             now = time.perf_counter()
+            dt, t_prev = now - t_prev, now
             if not self.play_cb.value:
-                self._playing = False
-                t_prev = now
+                self._playing, t_play = False, None
                 continue
             self._playing = True
-            k = self.last.get("row", 0)
-            t_target = self.trace["t"][k] + (now - t_prev) * float(self.speed.value)
-            t_prev = now
-            k2 = int(np.searchsorted(self.trace["t"], t_target, side="right")) - 1
-            if k2 >= len(self.trace) - 1:
-                k2 = 0 if k >= len(self.trace) - 1 else len(self.trace) - 1
-            self.show_frame(max(k2, k + 1) if k2 <= k and k < len(self.trace) - 1 else k2)
-            self.slider.value = self.last["row"]
+            if t_play is None:  # from the frame shown (the slider's)
+                t_play = float(t[self.last.get("row", 0)])
+            t_play += dt * float(self.speed.value)
+            if t_play > t[-1]:
+                t_play = float(t[0])
+            k = max(0, int(np.searchsorted(t, t_play, side="right")) - 1)
+            if k != self.last.get("row"):
+                self.show_frame(k)
+                self.slider.value = k
 
     # -- drawing -------------------------------------------------------------------
     def _plot(self, t, f, tq, depth, patches):
@@ -621,14 +619,18 @@ class Viewer:
                 # n from A into B, drawn as an arrow ending at the window's centre.
                 mid = o + 0.5 * s * (u + v)
                 normals.append([mid - 0.25 * s * np.asarray(c["n"][k]), mid])
-            # Overlays are made again each update (adding a node under a name replaces it)
-            # and removed when there is nothing to show.
+            # Overlays are made again each update (adding a node under a name replaces
+            # it) and removed when there is nothing to show.
             ov = self.overlays
-            for name in ("windows", "normals", "wrench"):
-                if ov.get(name) is not None:
-                    ov[name].remove()
-                    ov[name] = None
-            if segs:
+
+            def drop(*names):
+                for name in names:
+                    if ov.get(name) is not None:
+                        ov.pop(name).remove()
+
+            if not segs:
+                drop("windows", "normals")
+            else:
                 ov["windows"] = sc.add_line_segments("/patches/windows", np.array(segs) * MM, (230, 200, 0),
                                                      thickness=2.0, thickness_units="screen")
                 ov["normals"] = sc.add_arrows("/patches/normals", np.array(normals) * MM, (230, 200, 0),
@@ -642,7 +644,9 @@ class Viewer:
             if np.linalg.norm(L["torque"]) > 0:
                 arrows.append([com * MM, com * MM + L["torque"] * self.torque_scale])
                 colors.append((30, 60, 220))
-            if arrows:
+            if not arrows:
+                drop("wrench")
+            else:
                 ov["wrench"] = sc.add_arrows("/wrench", np.array(arrows), np.array(colors, dtype=np.uint8),
                                              shaft_radius=0.006 * self.extent, head_radius=0.015 * self.extent,
                                              head_length=0.03 * self.extent)

@@ -104,7 +104,7 @@ def test_the_drawn_surface_is_closed_and_holds_the_full_meshs_volume(name):
     from hbake.viewer import surface_mesh
 
     b = read_bundle(GOLDEN / f"{name}.hbundle")
-    v, f = surface_mesh(b.coarse_vertices, b.coarse_faces, b.coarse_uvs, b.atlas)
+    v, f = surface_mesh(b.coarse_faces, b.coarse_uvs, b.atlas)
     m = trimesh.Trimesh(v, f, process=False)
     assert m.is_watertight and m.is_winding_consistent
     texel = b.manifest["atlas"]["texel_size"]
@@ -113,7 +113,7 @@ def test_the_drawn_surface_is_closed_and_holds_the_full_meshs_volume(name):
           f"(mean offset {abs(m.volume - full) / m.area / texel:.3f} texel)")
     assert abs(m.volume - full) <= 0.25 * texel * m.area
     assert len(f) <= 400_000
-    v2, f2 = surface_mesh(b.coarse_vertices, b.coarse_faces, b.coarse_uvs, b.atlas, max_triangles=1000)
+    v2, f2 = surface_mesh(b.coarse_faces, b.coarse_uvs, b.atlas, max_triangles=1000)
     assert len(f2) <= 1000 < len(f)
     assert trimesh.Trimesh(v2, f2, process=False).is_watertight
 
@@ -281,3 +281,30 @@ def test_the_command_serves_until_sigterm_and_refuses_bad_input(tmp_path):
     finally:
         if p.poll() is None:
             p.kill()
+
+
+def test_replay_plays_at_the_speed_asked():
+    """Play at 0.1x: the replay's session time advances by a tenth of the wall time, so
+    the frame shown is the trace's frame at that time (5 ms frames: 20 rows per second),
+    whatever the display rate; the wall time is measured, the bound is two rows either way
+    (the display's 33 ms ticks and the rows' 5 ms)."""
+    from hbake.plot import Trace
+    from hbake.viewer import Viewer
+
+    tr = Trace(DATA / "press.trace.csv")
+    v = Viewer(DATA / "press.toml", DATA / "press.trace.csv", port=0)
+    try:
+        v.show_frame(3)
+        v.speed.value = 0.1
+        t0 = time.perf_counter()
+        v.play_cb.value = True
+        time.sleep(1.5)
+        row = v.last["row"]
+        wall = time.perf_counter() - t0
+        v.play_cb.value = False
+        want = float(tr["t"][3]) + 0.1 * wall
+        k = int(np.searchsorted(tr["t"], want, side="right")) - 1
+        print(f"after {wall:.2f} s at 0.1x: row {row}, expected about {k}")
+        assert abs(row - k) <= 2 and row > 3 + 20
+    finally:
+        v.close()
