@@ -369,7 +369,7 @@ NB_MODULE(_hrt, m) {
            }, "b"_a, "The pair tolerance of object b >= 1 against the probe (m).");
 
   nb::class_<PyRunner>(m, "Runner",
-                       "A scene file's haptic session (docs/scene-format.md) in lockstep: the scripted device,\n"
+                       "A scene file's haptic session (docs/scene-format.md) in lockstep: the scripted or virtual device,\n"
                        "the device loop and the simulation of `hrt run --lockstep`, frame by frame.")
       .def("__init__", [](PyRunner* self, const std::string& scene, nb::object duration, const std::string& trace,
                           const std::string& device, bool write_trace, bool keep_frames) {

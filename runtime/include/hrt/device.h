@@ -104,9 +104,10 @@ class ScriptedDevice : public Device {
 // returns the pose last given to set_pose() (the start pose before any),
 // write() keeps the wrench for last_wrench(). Deterministic in lockstep: a
 // pose set between two Runner::step() calls is read by every tick of the
-// next step. set_pose() and last_wrench() may run on any thread while the
-// device thread calls read() and write(): a sequence lock, so read() never
-// blocks and never sees half of a pose.
+// next step. set_pose() (one thread at a time) and last_wrench() may run on
+// any thread while the device thread calls read() and write(): a sequence
+// lock, so read() never sees half of a pose, and never waits: a writer found
+// mid-store on 64 tries in a row leaves the previous pose for that tick.
 class VirtualDevice : public Device {
  public:
   VirtualDevice(Pose start, DeviceInfo info);
@@ -120,9 +121,11 @@ class VirtualDevice : public Device {
 
  private:
   static constexpr int kWords = 8;  // x y z qx qy qz qw clutch
+  static constexpr int kReadAttempts = 64;
   std::atomic<uint64_t> seq_{0};
   std::atomic<double> pose_[kWords];
   std::atomic<double> wrench_[6];
+  DeviceSample last_;  // device thread: the last pose read
   DeviceInfo info_;
 };
 

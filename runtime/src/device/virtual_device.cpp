@@ -9,6 +9,7 @@ VirtualDevice::VirtualDevice(Pose start, DeviceInfo info) : info_(std::move(info
   for (auto& w : pose_) w.store(0.0, std::memory_order_relaxed);
   for (auto& w : wrench_) w.store(0.0, std::memory_order_relaxed);
   if (!set_pose(start)) set_pose(Pose{});
+  read(0.0, last_);  // the start pose: what a read that finds the writer mid-store holds
 }
 
 // A sequence lock (one writer at a time is the caller's business: the
@@ -31,13 +32,20 @@ bool VirtualDevice::set_pose(const Pose& pose, bool clutch) noexcept {
 }
 
 bool VirtualDevice::read(double /*t*/, DeviceSample& out) noexcept {
+  // A few tries; a writer caught mid-store on every one (descheduled between
+  // its stores) leaves the previous pose in place: read() never waits on it.
   double w[kWords];
-  for (;;) {
+  bool got = false;
+  for (int attempt = 0; attempt < kReadAttempts && !got; ++attempt) {
     const uint64_t s0 = seq_.load(std::memory_order_acquire);
     if (s0 & 1) continue;
     for (int k = 0; k < kWords; ++k) w[k] = pose_[k].load(std::memory_order_relaxed);
     std::atomic_thread_fence(std::memory_order_acquire);
-    if (seq_.load(std::memory_order_relaxed) == s0) break;
+    got = seq_.load(std::memory_order_relaxed) == s0;
+  }
+  if (!got) {
+    out = last_;
+    return true;
   }
   out.pose.position = Vec3(w[0], w[1], w[2]);
   out.pose.rotation = Eigen::Quaterniond(w[6], w[3], w[4], w[5]);
@@ -45,6 +53,7 @@ bool VirtualDevice::read(double /*t*/, DeviceSample& out) noexcept {
   if (info_.dof_sensed == 3) out.pose.rotation = Eigen::Quaterniond::Identity();
   out.clutch = w[7] != 0.0;
   out.buttons = 0;
+  last_ = out;
   return true;
 }
 
