@@ -180,7 +180,9 @@ def load_object(name: str, bundle: Path, max_triangles: int = MAX_SURFACE_TRIANG
     if not Path(bundle).exists():
         raise InputMissingError(f"{bundle}: no such bundle")
     try:
-        b = read_bundle(bundle, verify=False)
+        # Fully checked (hashes, convexity, the atlas's lookups): the page shows only a
+        # bundle the runtime would load, and a NaN texel would make a NaN vertex.
+        b = read_bundle(bundle, verify=True)
     except BundleError as exc:
         raise InputInvalidError(f"{bundle}: {exc}") from None
     except FileNotFoundError:

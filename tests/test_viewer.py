@@ -265,6 +265,10 @@ def test_the_command_serves_until_sigterm_and_refuses_bad_input(tmp_path):
     bad.write_text(scene.replace("[run]", "[run]\nspeed = 3", 1))
     r = subprocess.run([exe, "view", str(bad)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 4 and r.stderr.count("\n") == 1 and "run.speed" in r.stderr, r.stderr
+    # A corrupt bundle (a NaN texel, which the structural read alone lets through): one line.
+    r = subprocess.run([exe, "view", str(GOLDEN / "corrupt" / "nan_texel.hbundle")], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 4 and r.stderr.count("\n") == 1 and "non-finite" in r.stderr, r.stderr
     bad.write_text(scene.replace("pebble.hbundle", "nothing.hbundle"))
     r = subprocess.run([exe, "view", str(bad)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 3 and r.stderr.count("\n") == 1 and "nothing.hbundle" in r.stderr, r.stderr
