@@ -9,7 +9,9 @@
 #   bash examples/bench_gl.sh [OUTDIR]    (default out/bench; bundles baked by bench_runtime.sh)
 #
 # Environment: HRT, FRAMES (100), PASSES (3, the first a warm-up), RESOLUTIONS (50),
-# COPIES (1,2,4). On a machine with only a software renderer (llvmpipe) the GL
+# COPIES (1,2,4), HEIGHTS (surface,mesh: the height modes, each on every backend;
+# the mesh heights draw every atlas quad of the faces in reach, the work a GPU is
+# made for). On a machine with only a software renderer (llvmpipe) the GL
 # figures are CPU-bound: they measure Mesa's rasterizer, not a GPU.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -31,8 +33,11 @@ bench() {
     --settle -1 1 -1 --settle-depth 5e-5 --path 0.02 0 0 --frames "$FRAMES" --passes "$PASSES" \
     --resolutions "$RES" --copies "$COPIES" "$@"
 }
-for b in "--backend cpu" "--backend gl" "--backend gl --gl-search occlusion"; do
-  echo "=== $b"
-  # shellcheck disable=SC2086
-  bench $b 2>&1 | sed -n '/^machine/p;/^Scraping path by patch count/,$p'
+IFS=, read -r -a MODES <<< "${HEIGHTS:-surface,mesh}"
+for h in "${MODES[@]}"; do
+  for b in "--backend cpu" "--backend gl" "--backend gl --gl-search occlusion"; do
+    echo "=== --heights $h $b"
+    # shellcheck disable=SC2086
+    bench --heights "$h" $b 2>&1 | sed -n '/^machine/p;/^Scraping path by patch count/,$p'
+  done
 done

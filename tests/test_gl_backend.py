@@ -30,12 +30,15 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import fullsurface as FS
+import thinfeatures as TF
 from hrt_locate import hrt_binary
 
 HEIGHT_ULPS = 8.0
@@ -166,4 +169,41 @@ def test_gl_backends_equal_cpu_on_baked_models(hrt, models):
     print(f"{in_contact} of the CPU's patches in contact (delta > 0)")
     assert in_contact >= 20, "the scenes must be in contact"
     assert totals["compute"][0] >= 20 and totals["occlusion"][0] >= 20
+    assert not fails, f"{len(fails)} disagreements:\n" + "\n".join(fails[:20])
+
+
+@pytest.fixture(scope="module")
+def thin(tmp_path_factory):
+    """The thin-feature models of tests/test_thin_features.py, from the same bake cache."""
+    if not (FS.SHARED_MODELS / "armadillo.obj").is_file():
+        msg = f"../shared/models has no armadillo.obj ({FS.SHARED_MODELS})"
+        if FS.CI:
+            pytest.fail(msg)
+        pytest.skip(msg)
+    root = Path(os.environ.get("FULLSURFACE_CACHE") or tmp_path_factory.getbasetemp() / "fullsurface")
+    return {n: FS.bake_model(n, root) for n in ("box", "plate", "pins", "armadillo")}
+
+
+def test_gl_mesh_heights_equal_cpu_on_thin_features(hrt, thin):
+    """--heights mesh on both backends (the GL one draws a point per atlas quad): the pins
+    block and the armadillo pressed tip first into the box and the textured plate, N = 50
+    and 128; same bounds as above."""
+    radius = {name: atlas_radius(m) for name, m in thin.items()}
+    compared, worst, fails, in_contact = 0, 0.0, [], 0
+    for shape, seed in (("pins", 3), ("armadillo", 4)):
+        for cs in TF.tip_first_cases(thin, shape, 2, seed):
+            a, b = thin[cs.a], thin[cs.b]
+            hb = HEIGHT_ULPS * EPS32 * (radius[cs.a] + radius[cs.b])
+            for N in (50, 128):
+                cpu = query(hrt, a, b, cs, N, "--backend", "cpu", "--heights", "mesh")
+                gl = query(hrt, a, b, cs, N, "--backend", "gl", "--heights", "mesh")
+                assert gl["options"]["backend"] == "gl" and gl["options"]["heights"] == "mesh"
+                in_contact += sum(1 for c in cpu["contacts"] if c["covered"] and c["delta"] > 0)
+                n, w, f = compare(cpu, gl, lambda _k: hb, cpu["options"]["stiffness"], f"{cs.name} N={N} mesh")
+                compared += n
+                worst = max(worst, w)
+                fails += f
+    print(f"mesh heights: {compared} covered patches compared, worst |gl - cpu| / bound = {worst:.3g}, "
+          f"{in_contact} in contact")
+    assert in_contact >= 6, "the scenes must be in contact"
     assert not fails, f"{len(fails)} disagreements:\n" + "\n".join(fails[:20])

@@ -121,9 +121,6 @@ int run(const RunFlags& f) {
     if (cfg.backend == "gl" && cfg.scene.force.shortcut)
       throw Exit(kUsage, "--backend gl: " + cfg.file +
                              " sets [force] shortcut = true, which only the CPU backend implements; see hrt run --help");
-    if (cfg.backend == "gl" && cfg.scene.force.heights == hrt::HeightMode::mesh)
-      throw Exit(kUsage, "--backend gl: " + cfg.file +
-                             " sets [force] heights = \"mesh\", which only the CPU backend implements; see hrt run --help");
   }
   if (f.threads >= 0) cfg.scene.threads = f.threads;
   hrt::BackendChoice backend_choice = hrt::BackendChoice::cpu;

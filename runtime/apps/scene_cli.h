@@ -99,7 +99,7 @@ struct SceneFlags {
                     "surface: the reconstructed full surface on each texel column (parallax corrected); coarse: the "
                     "literal Eq. 8 of format 1.0 (n . f(q) at the coarse point q's column); mesh: the atlas quads "
                     "themselves, every face in reach at any angle, each texel the highest point over its square "
-                    "(CPU backend only)")
+                    "(both backends)")
         ->check(CLI::IsMember({"surface", "coarse", "mesh"}))
         ->capture_default_str();
     cmd->add_option("--max-patches", max_patches, "most contact patches per frame")->check(Integer())->capture_default_str();
@@ -148,8 +148,6 @@ struct SceneFlags {
       throw Exit(kUsage,
                  "--shortcut: the Sec. 5.2 shortcut is implemented by the CPU backend only; drop --shortcut or use "
                  "--backend cpu");
-    if (backend == "gl" && heights == "mesh")
-      throw Exit(kUsage, "--heights mesh: implemented by the CPU backend only; use --backend cpu");
   }
 
   hrt::gl::GlDepthOptions gl_options() const {

@@ -331,5 +331,46 @@ TEST(DepthAnalytic, RotatedGratingForceFollowsRidgeNormal) {
   }
 }
 
+// The mesh heights' whole-texel translations are shifts of configuration
+// 0's bordered map (a translation by m texels moves every quad, and so every
+// texel's square maximum, by exactly m texels). Independent check: delta at
+// A moved by +-lin_step along u and v, each computed from scratch as a
+// configuration 0, equals the shifted configurations 1-4 (rounding of the
+// placement offsets only: 1e-12 m), and Eq. 7's u and v components are their
+// central differences; on a grating at 23 degrees, where both are nonzero.
+TEST(DepthAnalytic, MeshHeightsTranslationsAreShiftsAndGiveTheGradient) {
+  const double phi = 23.0 * kPi / 180;
+  Gratings G(phi);
+  const double cell = G.lam / 40;
+  const int N = 50;
+  const Vec3 m(std::cos(phi), std::sin(phi), 0);
+  ForceOptions o = opts();
+  o.heights = HeightMode::mesh;
+  for (double sl : {0.15, -0.3}) {
+    const Pose pa = synth::make_pose(Vec3(0, 0, G.g) + sl * G.lam * m), pb;
+    const ContactPatch patch =
+        synth::make_patch(Vec3(0, 0, -1), Vec3::UnitX(), Vec3::Zero(), cell, N, G.A.face_tris, G.B.face_tris);
+    DepthScratch scratch;
+    const DepthGradient g = compute_depth_gradient(G.A.model, pa, G.B.model, pb, patch, o, scratch);
+    ASSERT_TRUE(g.covered);
+    EXPECT_EQ(g.uncovered_configurations, 0);
+    const double du = g.lin_step;
+    ASSERT_NEAR(du, cell, 1e-15);  // one texel: the shifts are taken
+    const Vec3 dirs[4] = {patch.u, -patch.u, patch.v, -patch.v};
+    double d[4];
+    for (int c = 0; c < 4; ++c) {
+      Pose moved = pa;
+      moved.position += du * dirs[c];
+      d[c] = compute_depth_gradient(G.A.model, moved, G.B.model, pb, patch, o, scratch).delta_at[0];
+      EXPECT_NEAR(g.delta_at[1 + c], d[c], 1e-12) << "configuration " << 1 + c << ", s/lambda " << sl;
+    }
+    EXPECT_NEAR(g.grad[0], (d[0] - d[1]) / (2 * du), 2e-12 / du);
+    EXPECT_NEAR(g.grad[1], (d[2] - d[3]) / (2 * du), 2e-12 / du);
+    // Not vacuous: the grating's slope shows in both components.
+    EXPECT_GT(std::abs(g.grad[0]), 0.05);
+    EXPECT_GT(std::abs(g.grad[1]), 0.02);
+  }
+}
+
 }  // namespace
 }  // namespace hrt

@@ -255,6 +255,30 @@ TEST_F(GlFixture, SurfacePathIsExercisedAndEqualsCpu) {
   EXPECT_GT(fixed_point, 0);
 }
 
+TEST_F(GlFixture, MeshHeightsEqualCpu) {
+  // heights = mesh: every atlas quad of the faces in reach, one point each
+  // (mesh.vert / mesh.geom / mesh.frag), against raster_triangle_mesh; the
+  // whole-texel translations are shifts of A0 on both. Same bound: the quad
+  // corners are the same float32 atlas texels, projected in double.
+  for (const auto& names : {std::pair{"pebble.hbundle", "bumpy_blob.hbundle"},
+                            std::pair{"bumpy_blob.hbundle", "ridged_box.hbundle"}}) {
+    const Golden g(names.first, names.second);
+    const hrt::Model &A = g.a, &B = g.b;
+    hrt::SceneOptions so;
+    so.force.heights = hrt::HeightMode::mesh;
+    const auto frames = contact_frames(A, B, so, 8, 13);
+    ASSERT_GE(frames.size(), 4u);
+    hrt::gl::GlDepthBackend gl(*ctx, {&A, &B});
+    const double bound = g.bound;
+    const Compare r =
+        compare_frames(frames, gl, so.force, [&](int, const hrt::Model&, const hrt::Model&) { return bound; });
+    std::printf("mesh heights, %s on %s: %d patches, %d configurations, worst %.3g m (bound %.3g), %d tiles in the "
+                "last frame\n",
+                names.first, names.second, r.patches, r.covered_both, r.worst, bound, gl.stats().tiles);
+    EXPECT_GT(r.covered_both, 30);
+  }
+}
+
 TEST_F(GlFixture, ManyPatchesInOneFrameEqualOneAtATime) {
   // Patches of several frames and of different window sizes in one call
   // (tiled together, and over several batches with a small render target)

@@ -424,9 +424,16 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
       out.region_hi[0] = hi_i + 1, out.region_hi[1] = hi_j + 1;
     }
   }
+  // The mesh mode's whole-texel translations are not in `rendered`: shifts.
+  // (They were left uncovered before, which zeroed the gradient's u and v.)
+  if (mesh_shift)
+    for (int c = 1; c <= 4; ++c) {
+      const int di = c == 1 ? shift_m : c == 2 ? -shift_m : 0, dj = c == 3 ? shift_m : c == 4 ? -shift_m : 0;
+      D[c] = shifted_depth(ha0, S, border, hb, N, di, dj);
+    }
   for (int k = 1; k < count; ++k) {
     const int c = rendered[k];
-    if ((seeded || mesh_shift) && shift_m > 0 && c >= 1 && c <= 4) {
+    if (seeded && shift_m > 0 && c >= 1 && c <= 4) {
       const int di = c == 1 ? shift_m : c == 2 ? -shift_m : 0, dj = c == 3 ? shift_m : c == 4 ? -shift_m : 0;
       D[c] = shifted_depth(ha0, S, border, hb, N, di, dj);
     } else {

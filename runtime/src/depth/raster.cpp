@@ -511,7 +511,8 @@ void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const
   for (int k = 0; k < 3; ++k) {
     const int k1 = (k + 1) % 3;
     double nx = -sgn * (ay[k1] - ay[k]), ny = sgn * (ax[k1] - ax[k]);
-    const double len = std::hypot(nx, ny);
+    // sqrt, not hypot: the GL backend's mesh.vert repeats this bit for bit.
+    const double len = std::sqrt(nx * nx + ny * ny);
     nx /= len, ny /= len;
     hp[nh++] = {nx, ny, -(nx * ax[k] + ny * ay[k]) + 1.0};
   }
@@ -535,7 +536,7 @@ void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const
       double da, db;
       affine(q, da, db);
       if (!std::isfinite(da) || !std::isfinite(db)) return;
-      const double slack = (kQuadReadMargin + 0.75) * std::hypot(da, db);
+      const double slack = (kQuadReadMargin + 0.75) * std::sqrt(da * da + db * db);
       // sign (q0 + da (i + 0.5 - ax0) + db (j + 0.5 - ay0) - bound) + slack >= 0
       hp[nh++] = {sign * da, sign * db, sign * (q[0] + da * (0.5 - ax[0]) + db * (0.5 - ay[0]) - bound) + slack};
     };

@@ -33,8 +33,9 @@ enum : int { PD_GX = 0, PD_GY = 4, PD_N = 8, PD_TOL = 12, PD_CELL = 13, PD_CULL 
 enum : int {
   PI_S = 0, PI_KEEP_MAX, PI_SURFACE, PI_TILE_X, PI_TILE_Y, PI_TRI_OFFSET, PI_TRI_COUNT, PI_VERT_BASE, PI_FACE_BASE,
   PI_ATLAS_W, PI_ATLAS_H, PI_USE_OK, PI_HAS_CULL, PI_N, PI_SEED_BORDER, PI_SEED_X, PI_SEED_Y, PI_OUT_OFFSET,
-  PI_FACE_COUNT
+  PI_FACE_COUNT, PI_MESH_OFFSET, PI_MESH_COUNT
 };
+constexpr int kMI = 6;  // ints per mesh entry (mesh.glsl)
 enum : int { PF_GX4 = 0, PF_GY4 = 4, PF_N4 = 8 };
 enum : int {
   SL_KIND = 0, SL_AX, SL_AY, SL_BORDER, SL_DI, SL_DJ, SL_CFG, SL_BX, SL_BY, SL_N, SL_REGION, SL_DIFF_X, SL_DIFF_Y,
@@ -139,18 +140,20 @@ struct GlDepthBackend::Impl {
     GLuint id = 0;
     size_t bytes = 0;
   };
-  Buf tris, pd, pi, pf, cfg, slots, results, ranges, queries;
+  Buf tris, pd, pi, pf, cfg, slots, results, ranges, queries, meshb;
   int target = 0;
   GLuint fbo = 0, tex_h = 0, tex_seed = 0, tex_jac = 0, tex_depth = 0;
   GLuint diff_fbo = 0, tex_diff = 0;
   GLuint vao = 0;
   GLuint prog_raster = 0, prog_resolve = 0, prog_reduce = 0, prog_diff = 0, prog_query = 0, prog_search = 0;
+  GLuint prog_mesh = 0;
   std::vector<GLuint> query_ids;
   // Uniform locations, looked up once (a lookup per frame is a string search in the driver).
   struct Locations {
     GLint raster_place = -1, raster_target = -1, resolve_first = -1, reduce_first = -1, reduce_region = -1;
     GLint diff_slot = -1, diff_target = -1, diff_mode = -1, query_slot = -1, query_target = -1, query_mode = -1;
     GLint query_cov = -1, search_first = -1, search_count = -1, search_step = -1;
+    GLint mesh_place = -1, mesh_target = -1;
   } loc;
 
   // The batch being built (CPU side; capacities kept between frames).
@@ -172,14 +175,19 @@ struct GlDepthBackend::Impl {
   std::vector<double> rangev;
   std::vector<double> resultv;
   std::vector<int> render_places;  // placement indices drawn into the render target
+  // HeightMode::mesh: placements drawn by the mesh program (placement, quads),
+  // their face entries (kMI ints each), and the face lists with reach.
+  std::vector<std::pair<int, int>> mesh_places;
+  std::vector<int> meshv;
+  std::vector<uint32_t> list_a, list_b;
   std::vector<const ModelGpu*> place_model;
   Shelf shelf, diff_shelf;
   size_t cfg_used = 0;
   std::vector<double> quantum;  // per job of the last evaluate()
 
   ~Impl() {
-    GLuint bufs[] = {buf_verts, buf_faces, buf_uvs, buf_surf, tris.id, pd.id, pi.id, pf.id, cfg.id, slots.id, results.id,
-                     ranges.id, queries.id};
+    GLuint bufs[] = {buf_verts, buf_faces, buf_uvs, buf_surf, tris.id, pd.id,      pi.id,     pf.id,
+                     cfg.id,    slots.id,  results.id, ranges.id, queries.id, meshb.id};
     glDeleteBuffers(static_cast<GLsizei>(sizeof bufs / sizeof bufs[0]), bufs);
     for (ModelGpu& m : models) {
       glDeleteTextures(1, &m.atlas);
@@ -190,7 +198,8 @@ struct GlDepthBackend::Impl {
     glDeleteFramebuffers(1, &fbo);
     glDeleteFramebuffers(1, &diff_fbo);
     glDeleteVertexArrays(1, &vao);
-    for (GLuint p : {prog_raster, prog_resolve, prog_reduce, prog_diff, prog_query, prog_search}) glDeleteProgram(p);
+    for (GLuint p : {prog_raster, prog_resolve, prog_reduce, prog_diff, prog_query, prog_search, prog_mesh})
+      glDeleteProgram(p);
     if (!query_ids.empty()) glDeleteQueries(static_cast<GLsizei>(query_ids.size()), query_ids.data());
   }
 
@@ -284,12 +293,12 @@ struct GlDepthBackend::Impl {
   // origin): corners +- the surface map's reach (or the model's diagonal
   // when it has no surface map), for the depth test's mapping.
   void height_range(const ModelGpu& mg, const PlacementParams& pp, const std::vector<uint32_t>& tris_list, double& lo,
-                    double& hi) const {
+                    double& hi, bool quads = false) const {
     const Model& M = *mg.model;
     lo = kInf, hi = -kInf;
     for (uint32_t f : tris_list) {
       if (f >= M.faces.size()) continue;
-      const double r = M.surface.ready ? M.surface.faces[f].reach : mg.diag;
+      const double r = !M.surface.ready ? mg.diag : quads ? M.surface.faces[f].quad_reach : M.surface.faces[f].reach;
       for (int c = 0; c < 3; ++c) {
         const double h = pp.nobj.dot(M.vertices[M.faces[f][c]]) + pp.oh;
         lo = std::min(lo, h - r);
@@ -298,6 +307,51 @@ struct GlDepthBackend::Impl {
     }
     if (!(lo <= hi)) lo = -1.0, hi = 1.0;
     lo -= 1e-9, hi += 1e-9;
+  }
+
+  // The mesh heights' face entries of a face list (raster_triangle_mesh's
+  // rectangle of atlas quads per face, the faces it skips left out):
+  // appends them to meshv; returns the first entry, sets the entry and quad
+  // counts. Every placement of the model with this list shares them.
+  int mesh_entries(const Model& M, const std::vector<uint32_t>& list, int& entries, int& items) {
+    const int first = static_cast<int>(meshv.size() / kMI);
+    entries = 0, items = 0;
+    const int W = M.atlas.width, H = M.atlas.height;
+    if (!M.surface.ready || W < 2 || H < 2) return first;
+    auto clampi = [](double v, int lo, int hi) {
+      return static_cast<int>(std::clamp(v, static_cast<double>(lo), static_cast<double>(hi)));
+    };
+    for (uint32_t f : list) {
+      if (f >= M.faces.size()) continue;
+      double ax[3], ay[3];
+      for (int c = 0; c < 3; ++c) {
+        ax[c] = static_cast<double>(M.uvs[f][c].x()) * W - 0.5;
+        ay[c] = (1.0 - static_cast<double>(M.uvs[f][c].y())) * H - 0.5;
+      }
+      const double e1x = ax[1] - ax[0], e1y = ay[1] - ay[0], e2x = ax[2] - ax[0], e2y = ay[2] - ay[0];
+      if (!(std::abs(e1x * e2y - e2x * e1y) > 1e-12)) continue;
+      const int qi0 = clampi(std::floor(std::min({ax[0], ax[1], ax[2]}) - 1.5), 0, W - 2);
+      const int qi1 = clampi(std::ceil(std::max({ax[0], ax[1], ax[2]}) + 0.5), 0, W - 2);
+      const int qj0 = clampi(std::floor(std::min({ay[0], ay[1], ay[2]}) - 1.5), 0, H - 2);
+      const int qj1 = clampi(std::ceil(std::max({ay[0], ay[1], ay[2]}) + 0.5), 0, H - 2);
+      const long long area = static_cast<long long>(qi1 - qi0 + 1) * (qj1 - qj0 + 1);
+      if (area <= 0) continue;
+      if (items + area > (1LL << 30))
+        throw std::invalid_argument("GL depth backend: a patch's mesh heights would draw more than 2^30 atlas quads");
+      float reach = M.surface.faces[f].quad_reach;
+      int reach_bits = 0;
+      std::memcpy(&reach_bits, &reach, 4);
+      meshv.insert(meshv.end(), {static_cast<int>(f), qi0, qj0, qi1 - qi0 + 1, items, reach_bits});
+      items += static_cast<int>(area);
+      ++entries;
+    }
+    return first;
+  }
+
+  void set_mesh(int p, int first, int entries, int items) {
+    int* i = &piv[static_cast<size_t>(p) * kPI];
+    i[PI_MESH_OFFSET] = first, i[PI_MESH_COUNT] = entries;
+    mesh_places.emplace_back(p, items);
   }
 
   void add_slot(int kind, int ax, int ay, int border, int di, int dj, int cfg_off, int bx, int by, int N, bool region,
@@ -325,6 +379,8 @@ struct GlDepthBackend::Impl {
     rangev.clear();
     render_places.clear();
     place_model.clear();
+    mesh_places.clear();
+    meshv.clear();
     shelf = Shelf{target};
     diff_shelf = Shelf{target};
     cfg_used = 0;
@@ -347,8 +403,13 @@ struct GlDepthBackend::Impl {
     const DepthPlan& plan = ji.plan;
     const int b = plan.border;
     const int SA = N + 2 * b;
+    // The mesh heights draw every configuration but the whole-texel
+    // translations, shifts of A0 as on the CPU (compute_depth_gradient).
+    const HeightMode mode = fo.heights;
+    const bool mesh = mode == HeightMode::mesh;
+    const bool mesh_shift = !plan.seeded && mesh && plan.shift_m > 0;
     // Room: B, A0, and A's other configurations when they are rasterized.
-    const int rendered_extra = plan.seeded ? 0 : 10;
+    const int rendered_extra = plan.seeded ? 0 : mesh_shift ? 6 : 10;
     int resolves = 0;
     if (plan.seeded)
       for (int c = 1; c < 11; ++c)
@@ -370,29 +431,38 @@ struct GlDepthBackend::Impl {
     ji.a = &ga;
     const Vec3 &n = patch.n, &u = patch.u, &v = patch.v;
     const Window& w = patch.window;
-    const HeightMode mode = fo.heights;
-    // Triangle lists.
+    // Triangle lists (the mesh heights: with the faces in reach).
+    const std::vector<uint32_t>& la = height_faces(patch.tris_a, patch.reach_a, mode, list_a);
+    const std::vector<uint32_t>& lb = height_faces(patch.tris_b, patch.reach_b, mode, list_b);
     const int oa = static_cast<int>(trisv.size());
-    trisv.insert(trisv.end(), patch.tris_a.begin(), patch.tris_a.end());
+    trisv.insert(trisv.end(), la.begin(), la.end());
     const int ob = static_cast<int>(trisv.size());
-    trisv.insert(trisv.end(), patch.tris_b.begin(), patch.tris_b.end());
-    const int na = static_cast<int>(patch.tris_a.size()), nb = static_cast<int>(patch.tris_b.size());
+    trisv.insert(trisv.end(), lb.begin(), lb.end());
+    const int na = static_cast<int>(la.size()), nb = static_cast<int>(lb.size());
+    const bool mesh_a = mesh && job.a->surface.ready, mesh_b = mesh && job.b->surface.ready;
+    int ea = 0, qa = 0, eb = 0, qb = 0;
+    const int fa = mesh_a ? mesh_entries(*job.a, la, ea, qa) : 0;
+    const int fb = mesh_b ? mesh_entries(*job.b, lb, eb, qb) : 0;
+    // A placement drawn by the mesh program or the face raster.
+    auto draw = [&](int p, bool is_a) {
+      if (is_a ? mesh_a : mesh_b) set_mesh(p, is_a ? fa : fb, is_a ? ea : eb, is_a ? qa : qb);
+      else render_places.push_back(p);
+    };
     // B (min heights), then A at configuration 0.
     int bx = 0, by = 0, ax0 = 0, ay0 = 0;
     shelf.place(N, bx, by);
     const PlacementParams ppb = placement_params(*job.b, plan.world_from_b, n, u, v, w, 0, mode);
     double blo, bhi;
-    height_range(gb, ppb, patch.tris_b, blo, bhi);
-    render_places.push_back(add_place(gb, ppb, w, N, false, bx, by, ob, nb, plan.cull_b, blo, bhi));
+    height_range(gb, ppb, lb, blo, bhi, mesh);
+    draw(add_place(gb, ppb, w, N, false, bx, by, ob, nb, plan.cull_b, blo, bhi), false);
     shelf.place(SA, ax0, ay0);
     const PlacementParams ppa = placement_params(*job.a, plan.world_from_a[0], n, u, v, w, b, mode);
     double alo, ahi;
-    height_range(ga, ppa, patch.tris_a, alo, ahi);
+    height_range(ga, ppa, la, alo, ahi, mesh);
     // Configurations move A by about a grid texel: two of margin.
     alo -= 2 * w.cell, ahi += 2 * w.cell;
-    const int a0 = add_place(ga, ppa, w, SA, true, ax0, ay0, oa, na,
-                             plan.seeded ? plan.cull_a : std::numeric_limits<double>::quiet_NaN(), alo, ahi);
-    render_places.push_back(a0);
+    const double cull_a = plan.seeded || mesh ? plan.cull_a : std::numeric_limits<double>::quiet_NaN();
+    draw(add_place(ga, ppa, w, SA, true, ax0, ay0, oa, na, cull_a, alo, ahi), true);
     ji.R = std::max(ahi, bhi) - std::min(alo, blo);
     ji.first_slot = static_cast<int>(slotv.size() / kSL);
     add_slot(0, ax0, ay0, b, 0, 0, 0, bx, by, N, true, ji.R);
@@ -420,11 +490,18 @@ struct GlDepthBackend::Impl {
       }
     } else {
       for (int c = 1; c < 11; ++c) {
+        if (mesh_shift && c <= 4) {
+          const int m = plan.shift_m;
+          const int di = c == 1 ? m : c == 2 ? -m : 0, dj = c == 3 ? m : c == 4 ? -m : 0;
+          add_slot(0, ax0, ay0, b, di, dj, 0, bx, by, N, false, ji.R);
+          continue;
+        }
         int tx = 0, ty = 0;
         shelf.place(N, tx, ty);
         const PlacementParams ppc = placement_params(*job.a, plan.world_from_a[c], n, u, v, w, 0, mode);
-        render_places.push_back(add_place(ga, ppc, w, N, true, tx, ty, oa, na,
-                                          std::numeric_limits<double>::quiet_NaN(), alo, ahi));
+        draw(add_place(ga, ppc, w, N, true, tx, ty, oa, na, mesh ? cull_a : std::numeric_limits<double>::quiet_NaN(),
+                       alo, ahi),
+             true);
         add_slot(1, tx, ty, 0, 0, 0, 0, bx, by, N, false, ji.R);
       }
     }
@@ -451,6 +528,8 @@ struct GlDepthBackend::Impl {
     ensure(ranges, rangev.size() * 8);
     ensure(results, nslots * kRS * 8);
     ensure(queries, nslots * 4);
+    ensure(meshb, std::max<size_t>(16, meshv.size() * 4));
+    if (!meshv.empty()) glNamedBufferSubData(meshb.id, 0, static_cast<GLsizeiptr>(meshv.size() * 4), meshv.data());
     if (trisv.size()) glNamedBufferSubData(tris.id, 0, static_cast<GLsizeiptr>(trisv.size() * 4), trisv.data());
     glNamedBufferSubData(pd.id, 0, static_cast<GLsizeiptr>(pdv.size() * 8), pdv.data());
     glNamedBufferSubData(pi.id, 0, static_cast<GLsizeiptr>(piv.size() * 4), piv.data());
@@ -468,6 +547,7 @@ struct GlDepthBackend::Impl {
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 10, results.id);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 11, ranges.id);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 12, queries.id);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 13, meshb.id);
     if (opt.profile) glFinish();
     stats.upload_us += us_since(t0);
 
@@ -487,6 +567,17 @@ struct GlDepthBackend::Impl {
       glUniform1i(loc_place, p);
       glDrawArrays(GL_TRIANGLES, 0, 6 * count);
       ++stats.tiles;
+    }
+    if (!mesh_places.empty()) {  // the mesh heights: one point per atlas quad, into the same tiles
+      glUseProgram(prog_mesh);
+      glUniform2f(loc.mesh_target, static_cast<float>(target), static_cast<float>(target));
+      for (const auto& [p, items] : mesh_places) {
+        if (items <= 0) continue;
+        bind_model(*place_model[static_cast<size_t>(p)]);
+        glUniform1i(loc.mesh_place, p);
+        glDrawArrays(GL_POINTS, 0, items);
+        ++stats.tiles;
+      }
     }
     if (opt.profile) glFinish();
     stats.draw_us += us_since(t0);
@@ -722,6 +813,7 @@ GlDepthBackend::GlDepthBackend(Context& context, const std::vector<const Model*>
   I.ensure(I.ranges, 32 * 11 * 8);
   I.ensure(I.results, 32 * 11 * kRS * 8);
   I.ensure(I.queries, 32 * 11 * 4);
+  I.ensure(I.meshb, 1u << 16);
   I.ensure(I.cfg, static_cast<size_t>(options.target_size) * options.target_size * 8);
   I.stats.buffer_growths = 0;
   I.query_ids.resize(32 * 11);
@@ -737,6 +829,9 @@ GlDepthBackend::GlDepthBackend(Context& context, const std::vector<const Model*>
   I.prog_query = make_program("occlusion query", {{GL_VERTEX_SHADER, {"slots.glsl", "quad.vert"}},
                                                   {GL_FRAGMENT_SHADER, {"empty.frag"}}});
   I.prog_search = make_program("search step", {{GL_COMPUTE_SHADER, {"search.comp"}}});
+  I.prog_mesh = make_program("mesh heights", {{GL_VERTEX_SHADER, {"mesh.glsl", "mesh.vert"}},
+                                              {GL_GEOMETRY_SHADER, {"mesh.geom"}},
+                                              {GL_FRAGMENT_SHADER, {"mesh.glsl", "mesh.frag"}}});
   auto& L = I.loc;
   L.raster_place = glGetUniformLocation(I.prog_raster, "u_place");
   L.raster_target = glGetUniformLocation(I.prog_raster, "u_target");
@@ -753,6 +848,8 @@ GlDepthBackend::GlDepthBackend(Context& context, const std::vector<const Model*>
   L.search_first = glGetUniformLocation(I.prog_search, "u_first_slot");
   L.search_count = glGetUniformLocation(I.prog_search, "u_count");
   L.search_step = glGetUniformLocation(I.prog_search, "u_step");
+  L.mesh_place = glGetUniformLocation(I.prog_mesh, "u_place");
+  L.mesh_target = glGetUniformLocation(I.prog_mesh, "u_target");
   if (GLenum e = glGetError(); e != GL_NO_ERROR)
     throw GlError("GL depth backend: GL error " + std::to_string(e) + " while setting up");
 }
@@ -764,9 +861,6 @@ void GlDepthBackend::evaluate(const DepthJob* jobs, int count, const ForceOption
   if (opt.shortcut)
     throw std::invalid_argument(
         "the GL backend does not implement the Sec. 5.2 shortcut (--shortcut / shortcut = true); use the CPU backend");
-  if (opt.heights == HeightMode::mesh)
-    throw std::invalid_argument(
-        "the GL backend does not implement heights = \"mesh\" (--heights mesh); use the CPU backend");
   const auto t0 = Clock::now();
   const uint64_t growths = I.stats.buffer_growths;
   I.stats = GlDepthStats{};

@@ -75,9 +75,7 @@ BackendSelection select_backend(BackendChoice choice, const std::vector<const Mo
   BackendSelection sel;
   // Options only the CPU backend implements (GlDepthBackend::evaluate would
   // refuse the first patch): gl is refused here, auto keeps to the cpu.
-  const char* cpu_only = scene_options.force.shortcut ? "the Sec. 5.2 shortcut"
-                         : scene_options.force.heights == HeightMode::mesh ? "heights = mesh"
-                                                                          : nullptr;
+  const char* cpu_only = scene_options.force.shortcut ? "the Sec. 5.2 shortcut" : nullptr;
   if (cpu_only && choice == BackendChoice::gl)
     throw std::invalid_argument(std::string("the gl backend does not implement ") + cpu_only + "; use the cpu backend");
   if (cpu_only && choice == BackendChoice::automatic) {

@@ -640,8 +640,6 @@ RunConfig load_run_config(const std::string& path) {
       const std::string h = s.choice("heights", "surface", {"surface", "coarse", "mesh"});
       parse_height_mode(h, f.heights);  // one of the three, checked by choice()
     }
-    if (f.heights == HeightMode::mesh && c.backend == "gl")
-      s.fail("heights", "heights = \"mesh\" is implemented by the CPU backend only, and run.backend is \"gl\"");
     c.scene.collision.margin = s.range("margin", c.scene.collision.margin, kMargin);
     ClusterOptions& cl = c.scene.cluster;
     cl.max_patches = s.integer("max_patches", cl.max_patches, 1, 4096);

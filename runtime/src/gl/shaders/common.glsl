@@ -50,6 +50,8 @@ layout(std430, binding = 7) readonly buffer PlaceF { float pf[]; };
 #define PI_SEED_Y 16
 #define PI_OUT_OFFSET 17
 #define PI_FACE_COUNT 18
+#define PI_MESH_OFFSET 19  // HeightMode::mesh: first of the placement's face entries (mesh.glsl)
+#define PI_MESH_COUNT 20   // and their number
 // floats
 #define PF_GX4 0
 #define PF_GY4 4
@@ -135,10 +137,9 @@ struct Tri {
   bool valid;
 };
 
-Tri triangle_setup(int p, uint t) {
+Tri triangle_setup_face(int p, uint f) {
   Tri T;
   T.valid = false;
-  uint f = tris[piv(p, PI_TRI_OFFSET) + int(t)];
   T.f = f;
   if (f >= uint(piv(p, PI_FACE_COUNT))) return T;
   int fb = piv(p, PI_FACE_BASE), vb = piv(p, PI_VERT_BASE);
@@ -158,6 +159,8 @@ Tri triangle_setup(int p, uint t) {
   T.valid = abs(T.area2) >= 1e-12lf;
   return T;
 }
+
+Tri triangle_setup(int p, uint t) { return triangle_setup_face(p, tris[piv(p, PI_TRI_OFFSET) + int(t)]); }
 
 // SurfaceMap::lateral_bound / cell: grid texels.
 double lateral_texels(int p, uint f) {
