@@ -17,6 +17,7 @@
 
 #include <epoxy/gl.h>
 
+#include "depth/mesh_rows.h"
 #include "hrt/gl_depth.h"
 
 namespace hrt::gl {
@@ -309,46 +310,51 @@ struct GlDepthBackend::Impl {
     lo -= 1e-9, hi += 1e-9;
   }
 
-  // The mesh heights' face entries of a face list (raster_triangle_mesh's
-  // rectangle of atlas quads per face, the faces it skips left out):
-  // appends them to meshv; returns the first entry, sets the entry and quad
-  // counts. Every placement of the model with this list shares them.
-  int mesh_entries(const Model& M, const std::vector<uint32_t>& list, int& entries, int& items) {
+  // The mesh heights' quads of one placement: per face and row of atlas
+  // quads the interval raster_triangle_mesh visits (MeshRows, the same code),
+  // one entry each; the faces and rows it skips left out. Appends them to
+  // meshv; returns the first entry, sets the entry and quad counts. The
+  // shaders then test only what varies per quad.
+  int mesh_entries(const Model& M, const std::vector<uint32_t>& list, const PlacementParams& pp, int S,
+                   const Window& w, bool keep_max, double cull, int& entries, int& items) {
     const int first = static_cast<int>(meshv.size() / kMI);
     entries = 0, items = 0;
-    const int W = M.atlas.width, H = M.atlas.height;
-    if (!M.surface.ready || W < 2 || H < 2) return first;
-    auto clampi = [](double v, int lo, int hi) {
-      return static_cast<int>(std::clamp(v, static_cast<double>(lo), static_cast<double>(hi)));
-    };
+    if (!M.surface.ready) return first;
+    const double W = M.atlas.width, H = M.atlas.height;
     for (uint32_t f : list) {
       if (f >= M.faces.size()) continue;
-      double ax[3], ay[3];
-      for (int c = 0; c < 3; ++c) {
+      double x[3], y[3], ax[3], ay[3];
+      for (int c = 0; c < 3; ++c) {  // raster_triangle's set-up
+        const Vec3& P = M.vertices[M.faces[f][c]];
+        x[c] = pp.gx.dot(P) + pp.ox;
+        y[c] = pp.gy.dot(P) + pp.oy;
         ax[c] = static_cast<double>(M.uvs[f][c].x()) * W - 0.5;
         ay[c] = (1.0 - static_cast<double>(M.uvs[f][c].y())) * H - 0.5;
       }
-      const double e1x = ax[1] - ax[0], e1y = ay[1] - ay[0], e2x = ax[2] - ax[0], e2y = ay[2] - ay[0];
-      if (!(std::abs(e1x * e2y - e2x * e1y) > 1e-12)) continue;
-      const int qi0 = clampi(std::floor(std::min({ax[0], ax[1], ax[2]}) - 1.5), 0, W - 2);
-      const int qi1 = clampi(std::ceil(std::max({ax[0], ax[1], ax[2]}) + 0.5), 0, W - 2);
-      const int qj0 = clampi(std::floor(std::min({ay[0], ay[1], ay[2]}) - 1.5), 0, H - 2);
-      const int qj1 = clampi(std::ceil(std::max({ay[0], ay[1], ay[2]}) + 0.5), 0, H - 2);
-      const long long area = static_cast<long long>(qi1 - qi0 + 1) * (qj1 - qj0 + 1);
-      if (area <= 0) continue;
-      if (items + area > (1LL << 30))
-        throw std::invalid_argument("GL depth backend: a patch's mesh heights would draw more than 2^30 atlas quads");
+      MeshRows rows;
+      if (!rows.setup(M, f, pp.nobj, pp.oh, S, w.cell, keep_max, cull, x, y, ax, ay)) continue;
       float reach = M.surface.faces[f].quad_reach;
       int reach_bits = 0;
       std::memcpy(&reach_bits, &reach, 4);
-      meshv.insert(meshv.end(), {static_cast<int>(f), qi0, qj0, qi1 - qi0 + 1, items, reach_bits});
-      items += static_cast<int>(area);
-      ++entries;
+      for (int j = rows.qj0; j <= rows.qj1; ++j) {
+        int lo = 0, hi = -1;
+        rows.range(j, lo, hi);
+        if (lo > hi) continue;
+        if (static_cast<long long>(items) + (hi - lo + 1) > (1LL << 30))
+          throw std::invalid_argument("GL depth backend: a patch's mesh heights would draw more than 2^30 atlas quads");
+        meshv.insert(meshv.end(), {static_cast<int>(f), lo, j, hi - lo + 1, items, reach_bits});
+        items += hi - lo + 1;
+        ++entries;
+      }
     }
     return first;
   }
 
-  void set_mesh(int p, int first, int entries, int items) {
+  // Placement p drawn by the mesh program: its quads (mesh_entries).
+  void set_mesh(int p, const Model& M, const std::vector<uint32_t>& list, const PlacementParams& pp, int S,
+                const Window& w, bool keep_max, double cull) {
+    int entries = 0, items = 0;
+    const int first = mesh_entries(M, list, pp, S, w, keep_max, cull, entries, items);
     int* i = &piv[static_cast<size_t>(p) * kPI];
     i[PI_MESH_OFFSET] = first, i[PI_MESH_COUNT] = entries;
     mesh_places.emplace_back(p, items);
@@ -440,13 +446,12 @@ struct GlDepthBackend::Impl {
     trisv.insert(trisv.end(), lb.begin(), lb.end());
     const int na = static_cast<int>(la.size()), nb = static_cast<int>(lb.size());
     const bool mesh_a = mesh && job.a->surface.ready, mesh_b = mesh && job.b->surface.ready;
-    int ea = 0, qa = 0, eb = 0, qb = 0;
-    const int fa = mesh_a ? mesh_entries(*job.a, la, ea, qa) : 0;
-    const int fb = mesh_b ? mesh_entries(*job.b, lb, eb, qb) : 0;
     // A placement drawn by the mesh program or the face raster.
-    auto draw = [&](int p, bool is_a) {
-      if (is_a ? mesh_a : mesh_b) set_mesh(p, is_a ? fa : fb, is_a ? ea : eb, is_a ? qa : qb);
-      else render_places.push_back(p);
+    auto draw = [&](int p, bool is_a, const PlacementParams& pp, int S, double cull) {
+      if (is_a ? mesh_a : mesh_b)
+        set_mesh(p, is_a ? *job.a : *job.b, is_a ? la : lb, pp, S, w, is_a, cull);
+      else
+        render_places.push_back(p);
     };
     // B (min heights), then A at configuration 0.
     int bx = 0, by = 0, ax0 = 0, ay0 = 0;
@@ -454,7 +459,7 @@ struct GlDepthBackend::Impl {
     const PlacementParams ppb = placement_params(*job.b, plan.world_from_b, n, u, v, w, 0, mode);
     double blo, bhi;
     height_range(gb, ppb, lb, blo, bhi, mesh);
-    draw(add_place(gb, ppb, w, N, false, bx, by, ob, nb, plan.cull_b, blo, bhi), false);
+    draw(add_place(gb, ppb, w, N, false, bx, by, ob, nb, plan.cull_b, blo, bhi), false, ppb, N, plan.cull_b);
     shelf.place(SA, ax0, ay0);
     const PlacementParams ppa = placement_params(*job.a, plan.world_from_a[0], n, u, v, w, b, mode);
     double alo, ahi;
@@ -462,7 +467,7 @@ struct GlDepthBackend::Impl {
     // Configurations move A by about a grid texel: two of margin.
     alo -= 2 * w.cell, ahi += 2 * w.cell;
     const double cull_a = plan.seeded || mesh ? plan.cull_a : std::numeric_limits<double>::quiet_NaN();
-    draw(add_place(ga, ppa, w, SA, true, ax0, ay0, oa, na, cull_a, alo, ahi), true);
+    draw(add_place(ga, ppa, w, SA, true, ax0, ay0, oa, na, cull_a, alo, ahi), true, ppa, SA, cull_a);
     ji.R = std::max(ahi, bhi) - std::min(alo, blo);
     ji.first_slot = static_cast<int>(slotv.size() / kSL);
     add_slot(0, ax0, ay0, b, 0, 0, 0, bx, by, N, true, ji.R);
@@ -499,9 +504,8 @@ struct GlDepthBackend::Impl {
         int tx = 0, ty = 0;
         shelf.place(N, tx, ty);
         const PlacementParams ppc = placement_params(*job.a, plan.world_from_a[c], n, u, v, w, 0, mode);
-        draw(add_place(ga, ppc, w, N, true, tx, ty, oa, na, mesh ? cull_a : std::numeric_limits<double>::quiet_NaN(),
-                       alo, ahi),
-             true);
+        const double cull_c = mesh ? cull_a : std::numeric_limits<double>::quiet_NaN();
+        draw(add_place(ga, ppc, w, N, true, tx, ty, oa, na, cull_c, alo, ahi), true, ppc, N, cull_c);
         add_slot(1, tx, ty, 0, 0, 0, 0, bx, by, N, false, ji.R);
       }
     }

@@ -4,10 +4,10 @@
 // multiply-adds, so that both backends keep the same quads and give the same
 // heights.
 
-// Per (placement's model, face) entry, kMI ints: the face, the first quad
-// column and row of its atlas rectangle, the rectangle's width, the first
-// item (quad) of the entry in the draw, and the face's quad_reach (float
-// bits). Written by depth_gl.cpp (mesh_entries).
+// Per (placement, face, row of atlas quads) entry, kMI ints: the face, the
+// first quad's column, the row, the number of quads, the first item (quad)
+// of the entry in the draw, and the face's quad_reach (float bits). Written
+// by depth_gl.cpp (mesh_entries) from src/depth/mesh_rows.h.
 layout(std430, binding = 13) readonly buffer MeshItems { int mesh[]; };
 #define MI_STRIDE 6
 #define MI_FACE 0
@@ -16,8 +16,6 @@ layout(std430, binding = 13) readonly buffer MeshItems { int mesh[]; };
 #define MI_WIDTH 3
 #define MI_FIRST 4
 #define MI_REACH 5
-
-const double kQuadReadMargin = 1.75lf;  // hrt/surface.h
 
 // One projected atlas texel (MeshCorner): grid coordinates and height.
 struct Corner {
