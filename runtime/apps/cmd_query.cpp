@@ -67,6 +67,7 @@ Json gl_json(const CliBackend& backend) {
           {"batches", s.batches},
           {"round_trips", s.round_trips},
           {"tiles", s.tiles},
+          {"mesh_quads", s.mesh_quads},
           {"occlusion_queries", s.occlusion_queries},
           {"buffer_growths", s.buffer_growths}};
 }
@@ -216,9 +217,9 @@ void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptio
     // Unprofiled (see gl_json): the total and the read-back only.
     const hrt::gl::GlDepthStats& g = backend.gl->stats();
     std::printf("gl (us)           total %.1f, read-back %.1f; %d batch(es), %d round trip(s), %d tile(s), %d occlusion "
-                "quer%s (last frame)\n",
+                "quer%s, %lld mesh quad(s) (last frame)\n",
                 g.total_us, g.readback_us, g.batches, g.round_trips, g.tiles, g.occlusion_queries,
-                g.occlusion_queries == 1 ? "y" : "ies");
+                g.occlusion_queries == 1 ? "y" : "ies", static_cast<long long>(g.mesh_quads));
   }
   const uint64_t any = w.fallback_normals + w.fcl_failures + w.pairs_grown + w.patches_dropped + w.empty_windows +
                        w.depth.undersampled_patches + w.depth.uncovered_configurations + w.refused_patches +

@@ -346,7 +346,7 @@ int run(const RunFlags& f) {
     jb["buffer_growths"] = gs.buffer_growths;
     // Of the last frame with patches (frame() calls the backend only then).
     jb["last_frame"] = {{"total_us", gs.total_us}, {"readback_us", gs.readback_us}, {"batches", gs.batches},
-                        {"round_trips", gs.round_trips}, {"tiles", gs.tiles}, {"occlusion_queries", gs.occlusion_queries}};
+                        {"round_trips", gs.round_trips}, {"tiles", gs.tiles}, {"mesh_quads", gs.mesh_quads}, {"occlusion_queries", gs.occlusion_queries}};
   }
   j["backend"] = jb;
   j["trace"] = cfg.trace.path;

@@ -581,6 +581,7 @@ struct GlDepthBackend::Impl {
         glUniform1i(loc.mesh_place, p);
         glDrawArrays(GL_POINTS, 0, items);
         ++stats.tiles;
+        stats.mesh_quads += items;
       }
     }
     if (opt.profile) glFinish();
