@@ -378,3 +378,28 @@ def test_run_backend_errors(hrt, tmp_path):
     assert res.returncode == 0, res.stderr
     assert "shortcut" in one_line(res.stderr)
     assert json.loads(res.stdout)["backend"]["name"] == "cpu"
+
+
+def test_a_mesh_heights_session_is_the_same_on_either_backend(hrt, tmp_path):
+    """[force] heights = "mesh" with backend = "gl" runs (it was refused before the GL
+    backend drew the mesh heights); in lockstep its trace is the CPU's, every column but the
+    timings (``*_us``) character for character."""
+    context_info(hrt)  # no context: fails under CI, else skips
+    traces = {}
+    for backend in ("cpu", "gl"):
+        folder = tmp_path / backend
+        folder.mkdir()
+        t = scene_tables(folder, backend=backend)
+        t["force"]["heights"] = "mesh"
+        res = hrt_run(hrt, write_scene(folder, "mesh", t), "--json")
+        assert res.returncode == 0, res.stderr
+        out = json.loads(res.stdout)
+        assert out["backend"]["name"] == backend
+        if backend == "gl":
+            assert out["backend"]["last_frame"]["mesh_quads"] > 0
+        rows = [line.split(",") for line in (folder / "out" / "trace.csv").read_text().splitlines()]
+        keep = [k for k, name in enumerate(rows[0]) if not name.endswith("_us")]
+        traces[backend] = [[r[k] for k in keep] for r in rows]
+    assert len(traces["cpu"]) > 20 and "contact_fz" in traces["cpu"][0]
+    assert traces["cpu"] == traces["gl"]
+    assert any(float(r[traces["cpu"][0].index("contact_fz")]) != 0 for r in traces["cpu"][1:])
