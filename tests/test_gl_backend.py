@@ -30,9 +30,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -175,13 +173,7 @@ def test_gl_backends_equal_cpu_on_baked_models(hrt, models):
 @pytest.fixture(scope="module")
 def thin(tmp_path_factory):
     """The thin-feature models of tests/test_thin_features.py, from the same bake cache."""
-    if not (FS.SHARED_MODELS / "armadillo.obj").is_file():
-        msg = f"../shared/models has no armadillo.obj ({FS.SHARED_MODELS})"
-        if FS.CI:
-            pytest.fail(msg)
-        pytest.skip(msg)
-    root = Path(os.environ.get("FULLSURFACE_CACHE") or tmp_path_factory.getbasetemp() / "fullsurface")
-    return {n: FS.bake_model(n, root) for n in ("box", "plate", "pins", "armadillo")}
+    return TF.bake_models(tmp_path_factory)
 
 
 def test_gl_mesh_heights_equal_cpu_on_thin_features(hrt, thin):

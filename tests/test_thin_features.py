@@ -25,9 +25,7 @@ The fast subset runs always; the 20-orientation sweep is behind the slow marker.
 from __future__ import annotations
 
 import math
-import os
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -41,14 +39,8 @@ MAX_LEFT_OUT = 0.05
 
 @pytest.fixture(scope="module")
 def models(tmp_path_factory):
-    if not (FS.SHARED_MODELS / "armadillo.obj").is_file():
-        msg = f"../shared/models has no armadillo.obj ({FS.SHARED_MODELS})"
-        if FS.CI:
-            pytest.fail(msg)
-        pytest.skip(msg)
-    root = Path(os.environ.get("FULLSURFACE_CACHE") or tmp_path_factory.getbasetemp() / "fullsurface")
     t0 = time.perf_counter()
-    out = {n: FS.bake_model(n, root) for n in ("box", "plate", "pins", "armadillo")}
+    out = TF.bake_models(tmp_path_factory)
     print(f"\nthin-feature bakes: {time.perf_counter() - t0:.1f} s; atlas texels "
           + ", ".join(f"{n} {m.texel * 1e6:.1f} um" for n, m in out.items()))
     return out

@@ -28,7 +28,9 @@ cell / SUB times the slope), plus ABS_TOL for float rounding.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import trimesh
@@ -54,6 +56,21 @@ BASE = (20 * MM, 20 * MM, 3 * MM)
 PINS = ((-6, -6, 0, 0), (-2, -6, 23, 10), (2, -6, 37, 130), (6, -6, 61, 250), (-6, 6, 17, 300))
 #: (x, y, yaw in degrees, tilt about the fin's long axis in degrees)
 FINS = ((0, 1, 23, 0), (5, 4, 67, 31), (-3, 6, 113, 12))
+
+
+def bake_models(tmp_path_factory) -> dict:
+    """The box, the textured plate, the pins block and the armadillo, baked once per test
+    session (or once per FULLSURFACE_CACHE folder). Without ../shared/models' armadillo:
+    fails under CI, else skips."""
+    import pytest
+
+    if not (FS.SHARED_MODELS / "armadillo.obj").is_file():
+        msg = f"../shared/models has no armadillo.obj ({FS.SHARED_MODELS})"
+        if FS.CI:
+            pytest.fail(msg)
+        pytest.skip(msg)
+    root = Path(os.environ.get("FULLSURFACE_CACHE") or tmp_path_factory.getbasetemp() / "fullsurface")
+    return {n: FS.bake_model(n, root) for n in ("box", "plate", "pins", "armadillo")}
 
 
 def make_pins() -> trimesh.Trimesh:
