@@ -178,15 +178,15 @@ def thin(tmp_path_factory):
 
 def test_gl_mesh_heights_equal_cpu_on_thin_features(hrt, thin):
     """--heights mesh on both backends (the GL one draws a point per atlas quad): the pins
-    block and the armadillo pressed tip first into the box and the textured plate, N = 50
-    and 128; same bounds as above."""
+    block and the armadillo pressed tip first into the box and the textured plate, the pins
+    at N = 50 and 128, the armadillo at 50; same bounds as above."""
     radius = {name: atlas_radius(m) for name, m in thin.items()}
     compared, worst, fails, in_contact = 0, 0.0, [], 0
     for shape, seed in (("pins", 3), ("armadillo", 4)):
         for cs in TF.tip_first_cases(thin, shape, 2, seed):
             a, b = thin[cs.a], thin[cs.b]
             hb = HEIGHT_ULPS * EPS32 * (radius[cs.a] + radius[cs.b])
-            for N in (50, 128):
+            for N in (50, 128) if shape == "pins" else (50,):
                 cpu = query(hrt, a, b, cs, N, "--backend", "cpu", "--heights", "mesh")
                 gl = query(hrt, a, b, cs, N, "--backend", "gl", "--heights", "mesh")
                 assert gl["options"]["backend"] == "gl" and gl["options"]["heights"] == "mesh"
@@ -197,5 +197,5 @@ def test_gl_mesh_heights_equal_cpu_on_thin_features(hrt, thin):
                 fails += f
     print(f"mesh heights: {compared} covered patches compared, worst |gl - cpu| / bound = {worst:.3g}, "
           f"{in_contact} in contact")
-    assert in_contact >= 6, "the scenes must be in contact"
+    assert in_contact >= 5, "the scenes must be in contact"
     assert not fails, f"{len(fails)} disagreements:\n" + "\n".join(fails[:20])
