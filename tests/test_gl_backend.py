@@ -190,6 +190,8 @@ def test_gl_mesh_heights_equal_cpu_on_thin_features(hrt, thin):
                 cpu = query(hrt, a, b, cs, N, "--backend", "cpu", "--heights", "mesh")
                 gl = query(hrt, a, b, cs, N, "--backend", "gl", "--heights", "mesh")
                 assert gl["options"]["backend"] == "gl" and gl["options"]["heights"] == "mesh"
+                if gl["contacts"]:  # drawn by the mesh program, not the face raster
+                    assert gl["gl"]["mesh_quads"] > 0, gl["gl"]
                 in_contact += sum(1 for c in cpu["contacts"] if c["covered"] and c["delta"] > 0)
                 n, w, f = compare(cpu, gl, lambda _k: hb, cpu["options"]["stiffness"], f"{cs.name} N={N} mesh")
                 compared += n

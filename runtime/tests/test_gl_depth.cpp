@@ -223,21 +223,39 @@ TEST_F(GlFixture, OcclusionSearchWithinOneDepthQuantum) {
   }
 }
 
+namespace {
+
+// GL against CPU for golden pair (na, nb) in height mode `mode`, on `want`
+// contact frames from seed `seed`, with the fixed compute bound.
+struct ModeRun {
+  Compare r;
+  hrt::gl::GlDepthStats stats;  // of the last frame
+  double bound = 0;
+};
+ModeRun compare_mode(hrt::gl::Context& ctx, const char* na, const char* nb, hrt::HeightMode mode, int want,
+                     uint64_t seed, size_t at_least) {
+  const Golden g(na, nb);
+  hrt::SceneOptions so;
+  so.force.heights = mode;
+  const auto frames = contact_frames(g.a, g.b, so, want, seed);
+  EXPECT_GE(frames.size(), at_least);
+  hrt::gl::GlDepthBackend gl(ctx, {&g.a, &g.b});
+  ModeRun m;
+  m.bound = g.bound;
+  m.r = compare_frames(frames, gl, so.force, [&](int, const hrt::Model&, const hrt::Model&) { return m.bound; });
+  m.stats = gl.stats();
+  return m;
+}
+
+}  // namespace
+
 TEST_F(GlFixture, CoarseHeightsEqualCpu) {
   // --heights coarse: every configuration of A rasterized (no seeds), the
   // literal Eq. 8.
-  const Golden g("pebble.hbundle", "ridged_box.hbundle");
-  const hrt::Model &A = g.a, &B = g.b;
-  hrt::SceneOptions so;
-  so.force.heights = hrt::HeightMode::coarse;
-  const auto frames = contact_frames(A, B, so, 12, 3);
-  ASSERT_GE(frames.size(), 6u);
-  hrt::gl::GlDepthBackend gl(*ctx, {&A, &B});
-  const double bound = g.bound;
-  const Compare r = compare_frames(frames, gl, so.force, [&](int, const hrt::Model&, const hrt::Model&) { return bound; });
-  std::printf("coarse: %d configurations, worst %.3g m (bound %.3g), %d tiles in the last frame\n", r.covered_both,
-              r.worst, bound, gl.stats().tiles);
-  EXPECT_GT(r.covered_both, 50);
+  const ModeRun m = compare_mode(*ctx, "pebble.hbundle", "ridged_box.hbundle", hrt::HeightMode::coarse, 12, 3, 6);
+  std::printf("coarse: %d configurations, worst %.3g m (bound %.3g), %d tiles in the last frame\n", m.r.covered_both,
+              m.r.worst, m.bound, m.stats.tiles);
+  EXPECT_GT(m.r.covered_both, 50);
 }
 
 TEST_F(GlFixture, SurfacePathIsExercisedAndEqualsCpu) {
@@ -262,20 +280,14 @@ TEST_F(GlFixture, MeshHeightsEqualCpu) {
   // corners are the same float32 atlas texels, projected in double.
   for (const auto& names : {std::pair{"pebble.hbundle", "bumpy_blob.hbundle"},
                             std::pair{"bumpy_blob.hbundle", "ridged_box.hbundle"}}) {
-    const Golden g(names.first, names.second);
-    const hrt::Model &A = g.a, &B = g.b;
-    hrt::SceneOptions so;
-    so.force.heights = hrt::HeightMode::mesh;
-    const auto frames = contact_frames(A, B, so, 8, 13);
-    ASSERT_GE(frames.size(), 4u);
-    hrt::gl::GlDepthBackend gl(*ctx, {&A, &B});
-    const double bound = g.bound;
-    const Compare r =
-        compare_frames(frames, gl, so.force, [&](int, const hrt::Model&, const hrt::Model&) { return bound; });
-    std::printf("mesh heights, %s on %s: %d patches, %d configurations, worst %.3g m (bound %.3g), %d tiles in the "
-                "last frame\n",
-                names.first, names.second, r.patches, r.covered_both, r.worst, bound, gl.stats().tiles);
-    EXPECT_GT(r.covered_both, 30);
+    const ModeRun m = compare_mode(*ctx, names.first, names.second, hrt::HeightMode::mesh, 8, 13, 4);
+    std::printf("mesh heights, %s on %s: %d patches, %d configurations, worst %.3g m (bound %.3g), %lld quads in "
+                "the last frame\n",
+                names.first, names.second, m.r.patches, m.r.covered_both, m.r.worst, m.bound,
+                static_cast<long long>(m.stats.mesh_quads));
+    EXPECT_GT(m.r.covered_both, 30);
+    // Drawn by the mesh program, not the face raster.
+    EXPECT_GT(m.stats.mesh_quads, 1000);
   }
 }
 
