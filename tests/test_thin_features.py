@@ -276,6 +276,25 @@ def test_tips_and_fins_moved_over_the_textured_plate_are_continuous(models, path
     check_continuity(ds, step, cell, f"tip {tip}, N = {N}")
 
 
+def test_mesh_heights_give_every_configuration_and_a_tangential_gradient(models):
+    """Eq. 7 with the mesh heights through the real chain: every configuration of every
+    patch is covered (the four whole-texel translations are shifts of configuration 0;
+    they were once left unevaluated, 4 uncovered per patch and g_u = g_v = 0), and the
+    pins pressed into the textured plate get a tangential gradient. (The gradient's value
+    against A moved and evaluated from scratch: runtime/tests/test_depth_analytic.cpp.)"""
+    contacts = 0
+    tangential = 0
+    for cs in TF.tip_first_cases(models, "pins", 4, 3):
+        q = FS.hrt_query(HRT, models[cs.a], models[cs.b], cs.pose_a, cs.pose_b, 50, heights="mesh")
+        assert q["warnings"]["uncovered_configurations"] == 0, (cs.name, q["warnings"])
+        for c in q["contacts"]:
+            if c["covered"] and c["delta"] > 0:
+                contacts += 1
+                tangential += cs.b == "plate" and abs(c["grad"][0]) + abs(c["grad"][1]) > 1e-3
+    assert contacts >= 3
+    assert tangential >= 1
+
+
 def test_validate_and_check_count_the_same_cut_quads(models):
     """Where the mesh heights' guarantee stops (docs/bundle-format.md): `hbake validate`
     (numpy, from the spec) and `hrt check` (the runtime's surface map) count the same atlas
