@@ -73,7 +73,7 @@ struct GlDepthStats {
   int batches = 0;       // render-target fills
   int round_trips = 0;   // waits for GPU results (read-backs)
   int tiles = 0;         // height tiles rendered
-  int64_t mesh_quads = 0;  // atlas quads drawn by the mesh heights (HeightMode::mesh)
+  int64_t mesh_quads = 0;  // atlas quads submitted by the mesh heights (HeightMode::mesh)
   int occlusion_queries = 0;
   uint64_t buffer_growths = 0;  // since construction
 };

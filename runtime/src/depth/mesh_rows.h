@@ -2,8 +2,10 @@
 // (HeightMode::mesh, docs/bundle-format.md "Heights over a texel's square"):
 // whether the face is skipped whole, and per row of atlas quads the interval
 // of quads worth visiting. Shared by the CPU rasterization
-// (raster_triangle_mesh in raster.cpp) and the GL backend, which draws
-// exactly these quads, so both visit the same quads and give the same bits.
+// (raster_triangle_mesh in raster.cpp) and the GL backend: its plan keeps a
+// face or not by setup() and hands the half-planes to the vertex shader,
+// which repeats range() per quad, so both visit the same quads and give the
+// same bits.
 #pragma once
 
 #include <algorithm>
@@ -142,11 +144,19 @@ struct MeshRows {
     hi = static_cast<int>(std::floor(fhi));
   }
 
+  // The half-planes range() intersects: count, and (gi, gj, g0) per plane
+  // into out[3 k .. 3 k + 2] (out holds kMaxPlanes x 3).
+  static constexpr int kMaxPlanes = 8;
+  int planes(double* out) const {
+    for (int k = 0; k < nh; ++k) out[3 * k] = hp[k].gi, out[3 * k + 1] = hp[k].gj, out[3 * k + 2] = hp[k].g0;
+    return nh;
+  }
+
  private:
   struct HalfPlane {
     double gi, gj, g0;
   };
-  HalfPlane hp[8];
+  HalfPlane hp[kMaxPlanes];
   int nh = 0;
 };
 

@@ -141,7 +141,7 @@ struct GlDepthBackend::Impl {
     GLuint id = 0;
     size_t bytes = 0;
   };
-  Buf tris, pd, pi, pf, cfg, slots, results, ranges, queries, meshb;
+  Buf tris, pd, pi, pf, cfg, slots, results, ranges, queries, meshb, meshdb;
   int target = 0;
   GLuint fbo = 0, tex_h = 0, tex_seed = 0, tex_jac = 0, tex_depth = 0;
   GLuint diff_fbo = 0, tex_diff = 0;
@@ -180,6 +180,7 @@ struct GlDepthBackend::Impl {
   // their face entries (kMI ints each), and the face lists with reach.
   std::vector<std::pair<int, int>> mesh_places;
   std::vector<int> meshv;
+  std::vector<double> meshd;  // their half-planes, 3 doubles each
   std::vector<uint32_t> list_a, list_b;
   std::vector<const ModelGpu*> place_model;
   Shelf shelf, diff_shelf;
@@ -188,7 +189,7 @@ struct GlDepthBackend::Impl {
 
   ~Impl() {
     GLuint bufs[] = {buf_verts, buf_faces, buf_uvs, buf_surf, tris.id, pd.id,      pi.id,     pf.id,
-                     cfg.id,    slots.id,  results.id, ranges.id, queries.id, meshb.id};
+                     cfg.id,    slots.id,  results.id, ranges.id, queries.id, meshb.id, meshdb.id};
     glDeleteBuffers(static_cast<GLsizei>(sizeof bufs / sizeof bufs[0]), bufs);
     for (ModelGpu& m : models) {
       glDeleteTextures(1, &m.atlas);
@@ -310,17 +311,20 @@ struct GlDepthBackend::Impl {
     lo -= 1e-9, hi += 1e-9;
   }
 
-  // The mesh heights' quads of one placement: per face and row of atlas
-  // quads the interval raster_triangle_mesh visits (MeshRows, the same code),
-  // one entry each; the faces and rows it skips left out. Appends them to
-  // meshv; returns the first entry, sets the entry and quad counts. The
-  // shaders then test only what varies per quad.
+  // The mesh heights' quads of one placement: per face that
+  // raster_triangle_mesh does not skip whole (MeshRows::setup, the same code)
+  // one entry, its rectangle of atlas quads, and its half-planes in meshd;
+  // the vertex shader repeats MeshRows::range for the quad's row. Per face,
+  // not per row, so the plan costs a few hundred operations per face (per row
+  // it cost more than the draw). Appends to meshv and meshd; returns the
+  // first entry, sets the entry and quad counts.
   int mesh_entries(const Model& M, const std::vector<uint32_t>& list, const PlacementParams& pp, int S,
                    const Window& w, bool keep_max, double cull, int& entries, int& items) {
     const int first = static_cast<int>(meshv.size() / kMI);
     entries = 0, items = 0;
     if (!M.surface.ready) return first;
     const double W = M.atlas.width, H = M.atlas.height;
+    double planes[3 * MeshRows::kMaxPlanes];
     for (uint32_t f : list) {
       if (f >= M.faces.size()) continue;
       double x[3], y[3], ax[3], ay[3];
@@ -333,19 +337,16 @@ struct GlDepthBackend::Impl {
       }
       MeshRows rows;
       if (!rows.setup(M, f, pp.nobj, pp.oh, S, w.cell, keep_max, cull, x, y, ax, ay)) continue;
-      float reach = M.surface.faces[f].quad_reach;
-      int reach_bits = 0;
-      std::memcpy(&reach_bits, &reach, 4);
-      for (int j = rows.qj0; j <= rows.qj1; ++j) {
-        int lo = 0, hi = -1;
-        rows.range(j, lo, hi);
-        if (lo > hi) continue;
-        if (static_cast<long long>(items) + (hi - lo + 1) > (1LL << 30))
-          throw std::invalid_argument("GL depth backend: a patch's mesh heights would draw more than 2^30 atlas quads");
-        meshv.insert(meshv.end(), {static_cast<int>(f), lo, j, hi - lo + 1, items, reach_bits});
-        items += hi - lo + 1;
-        ++entries;
-      }
+      const long long area = static_cast<long long>(rows.qi1 - rows.qi0 + 1) * (rows.qj1 - rows.qj0 + 1);
+      if (area <= 0) continue;
+      if (items + area > (1LL << 30))
+        throw std::invalid_argument("GL depth backend: a patch's mesh heights would draw more than 2^30 atlas quads");
+      const int nh = rows.planes(planes);
+      const int offset = static_cast<int>(meshd.size() / 3);
+      meshd.insert(meshd.end(), planes, planes + 3 * nh);
+      meshv.insert(meshv.end(), {rows.qi0, rows.qi1, rows.qj0, items, offset, nh});
+      items += static_cast<int>(area);
+      ++entries;
     }
     return first;
   }
@@ -387,6 +388,7 @@ struct GlDepthBackend::Impl {
     place_model.clear();
     mesh_places.clear();
     meshv.clear();
+    meshd.clear();
     shelf = Shelf{target};
     diff_shelf = Shelf{target};
     cfg_used = 0;
@@ -533,7 +535,9 @@ struct GlDepthBackend::Impl {
     ensure(results, nslots * kRS * 8);
     ensure(queries, nslots * 4);
     ensure(meshb, std::max<size_t>(16, meshv.size() * 4));
+    ensure(meshdb, std::max<size_t>(16, meshd.size() * 8));
     if (!meshv.empty()) glNamedBufferSubData(meshb.id, 0, static_cast<GLsizeiptr>(meshv.size() * 4), meshv.data());
+    if (!meshd.empty()) glNamedBufferSubData(meshdb.id, 0, static_cast<GLsizeiptr>(meshd.size() * 8), meshd.data());
     if (trisv.size()) glNamedBufferSubData(tris.id, 0, static_cast<GLsizeiptr>(trisv.size() * 4), trisv.data());
     glNamedBufferSubData(pd.id, 0, static_cast<GLsizeiptr>(pdv.size() * 8), pdv.data());
     glNamedBufferSubData(pi.id, 0, static_cast<GLsizeiptr>(piv.size() * 4), piv.data());
@@ -552,6 +556,7 @@ struct GlDepthBackend::Impl {
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 11, ranges.id);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 12, queries.id);
     glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 13, meshb.id);
+    glBindBufferBase(GL_SHADER_STORAGE_BUFFER, 14, meshdb.id);
     if (opt.profile) glFinish();
     stats.upload_us += us_since(t0);
 
@@ -819,6 +824,7 @@ GlDepthBackend::GlDepthBackend(Context& context, const std::vector<const Model*>
   I.ensure(I.results, 32 * 11 * kRS * 8);
   I.ensure(I.queries, 32 * 11 * 4);
   I.ensure(I.meshb, 1u << 16);
+  I.ensure(I.meshdb, 1u << 16);
   I.ensure(I.cfg, static_cast<size_t>(options.target_size) * options.target_size * 8);
   I.stats.buffer_growths = 0;
   I.query_ids.resize(32 * 11);

@@ -4,18 +4,49 @@
 // multiply-adds, so that both backends keep the same quads and give the same
 // heights.
 
-// Per (placement, face, row of atlas quads) entry, kMI ints: the face, the
-// first quad's column, the row, the number of quads, the first item (quad)
-// of the entry in the draw, and the face's quad_reach (float bits). Written
-// by depth_gl.cpp (mesh_entries) from src/depth/mesh_rows.h.
+// Per (placement, face) entry, MI_STRIDE ints: the face's rectangle of atlas
+// quads (columns qi0..qi1 from row qj0 on), the first item (quad) of the
+// entry in the draw, and its half-planes: where they start in `planes`
+// (3 doubles each: gi, gj, g0) and how many. Written by depth_gl.cpp
+// (mesh_entries) with src/depth/mesh_rows.h.
 layout(std430, binding = 13) readonly buffer MeshItems { int mesh[]; };
+layout(std430, binding = 14) readonly buffer MeshPlanes { double planes[]; };
 #define MI_STRIDE 6
-#define MI_FACE 0
-#define MI_QI0 1
+#define MI_QI0 0
+#define MI_QI1 1
 #define MI_QJ0 2
-#define MI_WIDTH 3
-#define MI_FIRST 4
-#define MI_REACH 5
+#define MI_FIRST 3
+#define MI_PLANES 4
+#define MI_NPLANES 5
+
+// MeshRows::range: row j's interval [lo, hi] of the entry's quads (empty
+// when lo > hi), the same operations in the same order.
+void mesh_row_range(int e, int j, out int lo, out int hi) {
+  double flo = double(mesh[e + MI_QI0]), fhi = double(mesh[e + MI_QI1]);
+  precise double cj = double(j) + 0.5lf;
+  int o = mesh[e + MI_PLANES], nh = mesh[e + MI_NPLANES];
+  for (int k = 0; k < nh && flo <= fhi; ++k) {
+    double gi = planes[3 * (o + k)], gj = planes[3 * (o + k) + 1], g0 = planes[3 * (o + k) + 2];
+    precise double rest = gj * cj + g0;
+    precise double eps = 1e-9lf * (abs(rest) + abs(gi) * (abs(flo) + abs(fhi)) + 1.0lf);
+    if (abs(gi) < 1e-300lf) {
+      if (rest + eps < 0.0lf) flo = fhi + 1.0lf;
+    } else if (gi > 0.0lf) {
+      precise double t = -(rest + eps) / gi - 0.5lf;
+      flo = max(flo, t);
+    } else {
+      precise double t = -(rest + eps) / gi - 0.5lf;
+      fhi = min(fhi, t);
+    }
+  }
+  if (!(flo <= fhi)) {
+    lo = 1;
+    hi = 0;
+    return;
+  }
+  lo = int(ceil(flo));
+  hi = int(floor(fhi));
+}
 
 // One projected atlas texel (MeshCorner): grid coordinates and height.
 struct Corner {

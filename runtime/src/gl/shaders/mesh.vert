@@ -1,8 +1,9 @@
-// The mesh heights, one atlas quad per point: which row entry the point is
-// (a binary search over the entries' first items; the CPU listed the rows'
-// intervals of quads raster_triangle_mesh visits), whether the quad itself
-// is skipped (the usable flag, finite corners, the height cull, the grid),
-// and the texels its footprint can meet, handed to mesh.geom as a box.
+// The mesh heights, one atlas quad per point: which face entry the point is
+// (a binary search over the entries' first items), whether
+// raster_triangle_mesh visits the quad (its row's interval, from the
+// half-planes the CPU computed for the face; the usable flag, finite
+// corners, the height cull, the grid), and the texels its footprint can
+// meet, handed to mesh.geom as a box.
 uniform int u_place;
 flat out ivec4 v_box;   // texels i0, i1, j0, j1 (empty: nothing drawn)
 flat out ivec2 v_quad;  // the quad's atlas column and row
@@ -24,8 +25,14 @@ void main() {
     else hi = mid - 1;
   }
   int e = (off + lo) * MI_STRIDE;
-  // The entry's row of quads (the CPU's MeshRows decided which are visited).
-  int qi = mesh[e + MI_QI0] + (item - mesh[e + MI_FIRST]), qj = mesh[e + MI_QJ0];
+  int qi0 = mesh[e + MI_QI0], width = mesh[e + MI_QI1] - qi0 + 1;
+  int r = item - mesh[e + MI_FIRST];
+  int qi = qi0 + r % width, qj = mesh[e + MI_QJ0] + r / width;
+  {
+    int rlo, rhi;
+    mesh_row_range(e, qj, rlo, rhi);
+    if (qi < rlo || qi > rhi) return;
+  }
   int S = piv(p, PI_S);
   double Sd = double(S);
   bool mx = piv(p, PI_KEEP_MAX) != 0;
