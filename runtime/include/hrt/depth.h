@@ -155,6 +155,10 @@ struct DepthWarnings {
 struct HeightSeeds {
   std::vector<double> a;
   std::vector<float> j;
+  // The texels that hold a seed (a finite height) lie in rows [j0, j1) and
+  // columns [i0, i1) of the bordered map: set by rasterize_heights_seeded,
+  // read by resolve_heights to skip the rest (the whole map until set).
+  int i0 = 0, i1 = std::numeric_limits<int>::max(), j0 = 0, j1 = std::numeric_limits<int>::max();
   void reserve(int side) {  // side = N + 2 border
     const size_t n2 = static_cast<size_t>(side) * side;
     if (a.size() < 2 * n2) a.resize(2 * n2);

@@ -4,10 +4,7 @@
 #include <cmath>
 #include <limits>
 
-#if defined(__SSE2__)
-#include <emmintrin.h>
-#endif
-
+#include "depth/reduce.h"
 #include "hrt/depth.h"
 #include "parallel/task_pool.h"
 
@@ -25,33 +22,22 @@ void ensure_capacity(DepthScratch& s, int N, int border) {
   s.seeds.reserve(S);
 }
 
-// max over k < n of a[k] - b[k]. -inf - finite = -inf, and (since A's
-// uncovered texels hold -inf and B's +inf) never NaN, so maxpd's NaN rule
-// does not matter. Written with SSE2 because the compiler does not
-// vectorize a max reduction without -ffast-math.
-inline double max_diff(const double* a, const double* b, int n) {
-  int i = 0;
-  double d = -kInf;
-#if defined(__SSE2__)
-  __m128d m0 = _mm_set1_pd(-kInf), m1 = m0;
-  for (; i + 4 <= n; i += 4) {
-    m0 = _mm_max_pd(m0, _mm_sub_pd(_mm_loadu_pd(a + i), _mm_loadu_pd(b + i)));
-    m1 = _mm_max_pd(m1, _mm_sub_pd(_mm_loadu_pd(a + i + 2), _mm_loadu_pd(b + i + 2)));
-  }
-  const __m128d m = _mm_max_pd(m0, m1);
-  d = std::max(_mm_cvtsd_f64(m), _mm_cvtsd_f64(_mm_unpackhi_pd(m, m)));
-#endif
-  for (; i < n; ++i) d = std::max(d, a[i] - b[i]);
-  return d;
-}
+using depth_reduce::covered_box;
+using depth_reduce::CoveredBox;
+using depth_reduce::max_diff;
 
 // max over the N x N texels of ha(i - di, j - dj) - hb(i, j), ha stored with
 // border b (row length S = N + 2b), |di|, |dj| <= b: the depth of A
-// translated by (di, dj) whole texels (its height map moves with it).
-double shifted_depth(const double* ha, int S, int b, const double* hb, int N, int di, int dj) {
+// translated by (di, dj) whole texels (its height map moves with it). Only
+// the texels whose source lies in ha's covered box are visited.
+double shifted_depth(const double* ha, int S, int b, const CoveredBox& box, const double* hb, int N, int di, int dj) {
   double d = -kInf;
-  for (int j = 0; j < N; ++j)
-    d = std::max(d, max_diff(ha + static_cast<size_t>(j - dj + b) * S + (b - di), hb + static_cast<size_t>(j) * N, N));
+  const int jlo = std::max(0, box.j0 + dj - b), jhi = std::min(N, box.j1 + dj - b);
+  const int ilo = std::max(0, box.i0 + di - b), ihi = std::min(N, box.i1 + di - b);
+  if (ilo >= ihi) return d;
+  for (int j = jlo; j < jhi; ++j)
+    d = std::max(d, max_diff(ha + static_cast<size_t>(j - dj + b) * S + (ilo - di + b),
+                             hb + static_cast<size_t>(j) * N + ilo, ihi - ilo));
   return d;
 }
 
@@ -395,17 +381,28 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     }
   }
 
-  D[0] = shifted_depth(ha0, S, border, hb, N, 0, 0);
+  // Seeded configurations are covered where configuration 0 is (their
+  // re-solves start from its seeds); the mesh mode's have their own boxes.
+  const CoveredBox box0 = false ? CoveredBox{scratch.seeds.i0, scratch.seeds.i1, scratch.seeds.j0, scratch.seeds.j1}
+                                 : covered_box(ha0, S, -kInf);
+  auto box_of = [&](const double* h) {
+    return seeded ? CoveredBox{box0.i0 - border, box0.i1 - border, box0.j0 - border, box0.j1 - border}
+                  : covered_box(h, N, -kInf);
+  };
+  D[0] = shifted_depth(ha0, S, border, box0, hb, N, 0, 0);
   if (D[0] == -kInf) return out;  // nothing covered by both: no contact
   if (D[0] > 0) {
     // The contact region (where the two overlap), for friction's centre of
     // pressure (hrt/session.h). One pass over configuration 0.
     double w_sum = 0, wi = 0, wj = 0;
     int lo_i = N, lo_j = N, hi_i = -1, hi_j = -1, count_overlap = 0;
-    for (int j = 0; j < N; ++j) {
+    // Only configuration 0's covered box can overlap (row-major order kept).
+    const int jlo = std::max(0, box0.j0 - border), jhi = std::min(N, box0.j1 - border);
+    const int ilo = std::max(0, box0.i0 - border), ihi = std::min(N, box0.i1 - border);
+    for (int j = jlo; j < jhi; ++j) {
       const double* ra = ha0 + static_cast<size_t>(j + border) * S + border;
       const double* rb = hb + static_cast<size_t>(j) * N;
-      for (int i = 0; i < N; ++i) {
+      for (int i = ilo; i < ihi; ++i) {
         const double d = ra[i] - rb[i];
         if (!(d > 0)) continue;  // -inf (uncovered) and touching texels are no overlap
         ++count_overlap;
@@ -429,15 +426,15 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   if (mesh_shift)
     for (int c = 1; c <= 4; ++c) {
       const int di = c == 1 ? shift_m : c == 2 ? -shift_m : 0, dj = c == 3 ? shift_m : c == 4 ? -shift_m : 0;
-      D[c] = shifted_depth(ha0, S, border, hb, N, di, dj);
+      D[c] = shifted_depth(ha0, S, border, box0, hb, N, di, dj);
     }
   for (int k = 1; k < count; ++k) {
     const int c = rendered[k];
     if (seeded && shift_m > 0 && c >= 1 && c <= 4) {
       const int di = c == 1 ? shift_m : c == 2 ? -shift_m : 0, dj = c == 3 ? shift_m : c == 4 ? -shift_m : 0;
-      D[c] = shifted_depth(ha0, S, border, hb, N, di, dj);
+      D[c] = shifted_depth(ha0, S, border, box0, hb, N, di, dj);
     } else {
-      D[c] = shifted_depth(bufs[k], N, 0, hb, N, 0, 0);
+      D[c] = shifted_depth(bufs[k], N, 0, box_of(bufs[k]), hb, N, 0, 0);
     }
   }
 
@@ -446,10 +443,10 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     const double rs = std::round(s);
     if (std::abs(s - rs) < 1e-9 && rs <= border) {
       const int m = static_cast<int>(rs);
-      D[1] = shifted_depth(ha0, S, border, hb, N, m, 0);
-      D[2] = shifted_depth(ha0, S, border, hb, N, -m, 0);
-      D[3] = shifted_depth(ha0, S, border, hb, N, 0, m);
-      D[4] = shifted_depth(ha0, S, border, hb, N, 0, -m);
+      D[1] = shifted_depth(ha0, S, border, box0, hb, N, m, 0);
+      D[2] = shifted_depth(ha0, S, border, box0, hb, N, -m, 0);
+      D[3] = shifted_depth(ha0, S, border, box0, hb, N, 0, m);
+      D[4] = shifted_depth(ha0, S, border, box0, hb, N, 0, -m);
     } else {
       D[1] = fractional_shift_depth(ha0, S, border, hb, N, s, 0);
       D[2] = fractional_shift_depth(ha0, S, border, hb, N, -s, 0);

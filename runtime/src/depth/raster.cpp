@@ -9,6 +9,7 @@
 #endif
 
 #include "depth/mesh_rows.h"
+#include "depth/reduce.h"
 #include "depth/resolve_simd.h"
 #include "hrt/depth.h"
 
@@ -841,7 +842,9 @@ void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_fro
                               const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, int border, bool keep_max,
                               double* out, HeightSeeds& seeds, double cull) {
   const int S = std::max(w.resolution + 2 * border, 0);
-  std::fill(out, out + static_cast<size_t>(S) * S, keep_max ? -kInf : kInf);
+  const double none = keep_max ? -kInf : kInf;
+  std::fill(out, out + static_cast<size_t>(S) * S, none);
+  seeds.i0 = seeds.i1 = seeds.j0 = seeds.j1 = 0;
   if (tris.empty() || !usable(M, w)) return;
   Placement pl = make_placement(M, world_from_m, n, u, v, w, border, keep_max, out, HeightMode::surface);
   pl.cull = cull;
@@ -849,6 +852,8 @@ void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_fro
   pl.seed_j = seeds.j.data();
   for (uint32_t f : tris)
     if (f < M.faces.size()) raster_triangle(M, f, pl);
+  const depth_reduce::CoveredBox box = depth_reduce::covered_box(out, S, none);
+  seeds.i0 = box.i0, seeds.i1 = box.i1, seeds.j0 = box.j0, seeds.j1 = box.j1;
 }
 
 namespace {
@@ -881,6 +886,9 @@ void resolve_heights_impl(const Model& M, const Eigen::Isometry3d& world_from_m,
     a.gx0 = gx0, a.gxi = gxi, a.gxj = gxj, a.gxh = gxh, a.gy0 = gy0, a.gyi = gyi, a.gyj = gyj, a.gyh = gyh;
     a.N = N, a.border = border, a.none = none;
     a.seed_h = seed_h, a.seed_a = seeds.a.data(), a.seed_j = seeds.j.data(), a.other = other, a.out = out;
+    // The seeds' box in the N x N texels (texels outside hold no seed).
+    a.i0 = std::clamp(seeds.i0 - border, 0, N), a.i1 = std::clamp(seeds.i1 - border, a.i0, N);
+    a.j0 = std::clamp(seeds.j0 - border, 0, N), a.j1 = std::clamp(seeds.j1 - border, a.j0, N);
     depth_simd::resolve_all(a);
     return;
   }

@@ -119,24 +119,31 @@ void ResolveAll(const ResolveArgs& A) {
   HWY_ALIGN double t_h[kMaxLanes], t_a[2 * kMaxLanes], t_o[kMaxLanes], t_out[kMaxLanes];
   HWY_ALIGN float t_j[4 * kMaxLanes];
   for (int j = 0; j < N; ++j) {
-    const VD Y = hn::Set(dd, static_cast<double>(j));
     const size_t row = static_cast<size_t>(j) * N;
+    if (j < A.j0 || j >= A.j1 || A.i0 >= A.i1) {
+      std::fill(A.out + row, A.out + row + N, A.none);
+      continue;
+    }
+    std::fill(A.out + row, A.out + row + A.i0, A.none);
+    std::fill(A.out + row + A.i1, A.out + row + N, A.none);
+    const VD Y = hn::Set(dd, static_cast<double>(j));
     const size_t srow = static_cast<size_t>(j + A.border) * S + A.border;
-    for (int i0 = 0; i0 < N; i0 += static_cast<int>(L)) {
-      const size_t m = std::min(L, static_cast<size_t>(N - i0));
+    for (int i0 = A.i0; i0 < A.i1; i0 += static_cast<int>(L)) {
+      const size_t m = std::min(L, static_cast<size_t>(A.i1 - i0));
       const double* ph0 = A.seed_h + srow + i0;
       const double* pa = A.seed_a + 2 * (srow + i0);
       const float* pj = A.seed_j + 4 * (srow + i0);
       const double* po = A.other ? A.other + row + i0 : nullptr;
       double* pout = A.out + row + i0;
-      if (m < L) {  // the tail: copies padded with uncovered seeds
-        for (size_t l = 0; l < L; ++l) {
-          const bool in = l < m;
-          t_h[l] = in ? ph0[l] : HUGE_VAL;
-          t_a[2 * l] = in ? pa[2 * l] : 0.0, t_a[2 * l + 1] = in ? pa[2 * l + 1] : 0.0;
-          for (int c = 0; c < 4; ++c) t_j[4 * l + c] = in ? pj[4 * l + c] : 0.0f;
-          if (po) t_o[l] = in ? po[l] : 0.0;
-        }
+      if (m < L) {
+        // The tail: copies padded with uncovered seeds. Straight copies: the
+        // same copy written as one loop of `l < m ? src : pad` gave some
+        // lanes wrong seeds in GCC 12's AVX-512 build (the bit-for-bit test
+        // failed on AVX3 only, once tails fell inside the covered box).
+        std::copy(ph0, ph0 + m, t_h), std::fill(t_h + m, t_h + L, HUGE_VAL);
+        std::copy(pa, pa + 2 * m, t_a), std::fill(t_a + 2 * m, t_a + 2 * L, 0.0);
+        std::copy(pj, pj + 4 * m, t_j), std::fill(t_j + 4 * m, t_j + 4 * L, 0.0f);
+        if (po) std::copy(po, po + m, t_o), std::fill(t_o + m, t_o + L, 0.0);
         ph0 = t_h, pa = t_a, pj = t_j, po = po ? t_o : nullptr, pout = t_out;
       }
       const VD h0 = hn::LoadU(dd, ph0);

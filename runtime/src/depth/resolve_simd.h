@@ -20,6 +20,7 @@ struct ResolveArgs {
   double ox, oy, oh, tol2;
   double gx0, gxi, gxj, gxh, gy0, gyi, gyj, gyh;
   int N, border;
+  int i0, i1, j0, j1;      // the texels that can hold a seed (N x N coordinates)
   double none;             // -inf (A, keep_max) or +inf
   const double* seed_h;    // (N + 2 border)^2
   const double* seed_a;    // 2 per seed texel
@@ -31,6 +32,9 @@ struct ResolveArgs {
 // resolve_heights' loop over every texel: the same operations in the same
 // order as resolve_heights_reference's scalar loop, so the same bits on
 // every target (this file is compiled without floating-point contraction).
+// Texels outside the seeds' box [i0, i1) x [j0, j1) are set to `none`
+// without a test (they hold no seed). Lanes are independent, so where the
+// vectors start does not change a texel's result.
 void resolve_all(const ResolveArgs& a);
 
 // The Highway target resolve_all dispatches to on this CPU (for reports).
