@@ -120,7 +120,7 @@ TEST(IoFuzz, GoldenBundleSurvivesByteFlipsAndTruncations) {
       if (size < best_size) best_size = size, best = e.path().string();
     }
   }
-  if (best.empty()) GTEST_SKIP() << "no golden bundle in " << golden_dir() << " (tests/golden/make_golden.py writes them)";
+  if (best.empty()) GTEST_FAIL() << "no golden bundle in " << golden_dir() << " (tests/golden/make_golden.py writes them)";
   fuzz_bundle(best, "golden", 40);
 }
 
