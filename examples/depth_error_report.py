@@ -1,11 +1,11 @@
-"""The README's figure (issue 8): the runtime's depth error against the full meshes.
+"""The runtime guide's figure (docs/guides/runtime.md): the runtime's depth error against the full meshes.
 
 Bakes the scenes of tests/test_fullsurface_depth.py (angled gratings pressed together at
 six offsets, a bumpy sphere on a textured plate, three ../shared/models -- rocker arm,
 fandisk, Stanford bunny -- on a textured plate and a plain box), runs `hrt query --json` at
 N = 50 and 128 and prints, per group and over all scenes, the patches compared, the
 kept fraction and the median and worst |delta_hrt - delta_full| in atlas texels (the
-larger texel of the pair), with the worst bound; the last line is the README's figure
+larger texel of the pair), with the worst bound; the last line is the runtime guide's figure
 (median and worst over all scenes, with the command).
 
     HRT=build/tests8/hrt .venv/bin/python examples/depth_error_report.py [--patches] [--json FILE]

@@ -41,7 +41,7 @@ for s in $SEEDS; do
     name=$(basename "$m"); name=${name%.*}
     bundle="$OUT/${name}_s$s.hbundle"
     extra=()
-    # The settings the bench uses for the 7-body gear set (README: multi-body files).
+    # The settings the bench uses for the 7-body gear set (docs/guides/baking.md, "Bake benchmark").
     [ "$name" = planetary_gears ] && extra=(--target-faces 1200 --set decompose.threshold=0.1)
     if [ ! -d "$bundle" ]; then
       "$HBAKE" bake "$m" --units m -o "$bundle" --seed "$s" --samples "$SAMPLES" -q "${extra[@]}" \

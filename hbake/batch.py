@@ -14,7 +14,7 @@ the manifest names. Anything else is re-baked, and the report says why.
 
 Each bake is the ``hbake bake`` command in a child process (``run_job``): the native
 libraries, a crash or an out-of-memory kill stay inside it, its exit code is the error
-class of docs/README's table, and its peak RSS (wait4) is measured. The same function
+class of the exit-code table (docs/guides/baking.md), and its peak RSS (wait4) is measured. The same function
 runs on a Dask worker (hbake/executors.py), so both executors share the caching, the
 report and the error classes.
 """
@@ -47,7 +47,7 @@ from hbake.errors import (EXIT_BAKE_FAILED, EXIT_CONFIG, EXIT_INPUT_INVALID, EXI
 #: Exit code of ``hbake batch`` when at least one model failed (the others were baked).
 EXIT_BATCH_FAILED = 18
 
-#: Error class names of the exit codes (README, "Exit codes"); the JSON outputs use them.
+#: Error class names of the exit codes (docs/guides/baking.md, "Exit codes"); the JSON outputs use them.
 ERROR_CLASSES = {
     0: "ok",
     1: "internal",
@@ -65,7 +65,7 @@ ERROR_CLASSES = {
 }
 
 #: Peak RSS of one `hbake bake` process tree = base + per_triangle x input triangles.
-#: Fitted above the measured envelope (the bake benchmark, README 2026-11-22: 13k-87k
+#: Fitted above the measured envelope (the bake benchmark of docs/guides/baking.md, measured 2026-11-22: 13k-87k
 #: triangles 488-602 MiB in-process, the 650k CAD part 997 MiB; the CLI's forked bake
 #: adds about 100 MiB: fandisk 698 MiB, armadillo 722 MiB in `hbake batch`, 2026-12-02),
 #: so it over- rather than under-estimates; a batch scales it up by the largest
@@ -485,7 +485,7 @@ def skipped_result(job: Job) -> dict:
 
 def run_batch(jobs: list[Job], executor, *, log: Callable[[str], None] = lambda s: None) -> dict:
     """Run the jobs that are not up to date on ``executor`` (hbake.executors) and return
-    the report (README, "hbake batch"). Progress lines go to ``log``."""
+    the report (docs/guides/pipelines.md, "hbake batch"). Progress lines go to ``log``."""
     t0 = time.perf_counter()
     todo = [j for j in jobs if not j.skip]
     results: dict[str, dict] = {}

@@ -67,7 +67,7 @@ BENCH_METHODS = ("cage", "preserve", "pp", "auto", "both")
 _EXIT_UNREACHABLE = 9
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-#: The environment variable naming the shared models' folder (README, "Shared models").
+#: The environment variable naming the shared models' folder (README, "The first hour").
 MODELS_ENV = "HBAKE_MODELS"
 
 

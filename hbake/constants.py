@@ -134,7 +134,7 @@ PACK_SEARCH_MAX_STEPS = 14
 #: therefore repeated with the charts longer than each of these fractions of the page's
 #: side (at the density that would fill the page) cut across into slabs, and the densest
 #: packing of all is kept (hbake/parameterize.py). Measured with `hbake bake` on the
-#: shared models (README, "The atlas"): 1 cuts only the charts that cannot fit the page
+#: shared models (docs/guides/baking.md, "The atlas"): 1 cuts only the charts that cannot fit the page
 #: (hammer 41.6 -> 61.5 %), 0.5 and 0.3 gain on terrain-like and organic parts; finer
 #: cuts only add padding.
 PACK_SPLIT_FRACTIONS = (1.0, 0.5, 0.3)

@@ -3,7 +3,7 @@
 Every user-facing failure is an ``HbakeError`` subclass carrying one line of
 text (naming the file and what is wrong) and a distinct exit code; the CLI
 prints ``hbake: error: <message>`` and exits with that code, never a traceback.
-Exit codes are documented in the README and are stable.
+Exit codes are documented in docs/guides/baking.md ("Exit codes") and are stable.
 """
 from __future__ import annotations
 

@@ -8,7 +8,7 @@ page are now cut across and the densest packing is kept (C.PACK_SPLIT_FRACTIONS)
 these tests hold in place.
 
 The floors were fixed before the tests were written, from the bakes measured with the
-change (README, "The atlas"), with a margin for a future xatlas or chart rule:
+change (docs/guides/baking.md, "The atlas"), with a margin for a future xatlas or chart rule:
 
 * bar, 768 triangles, 256 x 256 atlas: 79.6 % measured, 34.0 % before; floor 70 %
   (12 % below the measured figure for a different packer's placement, still twice the

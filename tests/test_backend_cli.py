@@ -35,7 +35,7 @@ PEBBLE = GOLDEN / "pebble.hbundle"
 BLOB = GOLDEN / "bumpy_blob.hbundle"
 Z_CONTACT = 0.0168                     # m: the pebble 0.2 mm inside the blob's top (see above)
 POSES = ["--pose-a", "0", "0", str(Z_CONTACT), "0", "0", "0", "1", "--pose-b", "0", "0", "0", "0", "0", "0", "1"]
-# Exit codes of hrt (runtime/apps/commands.h, README "Exit codes").
+# Exit codes of hrt (runtime/apps/commands.h, docs/guides/runtime.md, "hrt check").
 USAGE, SCENE, GL = 2, 4, 7
 # Text on stderr that only a crash or an uncaught exception prints.
 CRASH_MARKERS = ("Traceback", "terminate called", "what():", "Aborted", "core dumped", "Segmentation",

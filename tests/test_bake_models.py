@@ -391,7 +391,7 @@ SHARED_BAKES = SHARED_OVERRIDES
 
 
 #: Bakes measured at 25 s or more each on the 2-core machine (CoACD dominates; figures in
-#: the README's bake benchmark), and, to keep `make test` within its time, the bakes a
+#: the bake benchmark of docs/guides/baking.md), and, to keep `make test` within its time, the bakes a
 #: faster model of the same kind already covers there (fandisk for the shared scans and
 #: CAD parts: armadillo, rocker arm, hammer; the ridged block and the grating for the
 #: procedural reliefs: gear, torus, rasp; the armadillo is also baked by the

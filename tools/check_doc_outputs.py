@@ -42,7 +42,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 #: The files checked. docs/bundle-format.md quotes no command output.
-DEFAULT_FILES = ["README.md", *sorted(str(p.relative_to(REPO)) for p in (REPO / "docs").glob("*.md"))]
+DEFAULT_FILES = ["README.md", *sorted(str(p.relative_to(REPO)) for p in (REPO / "docs").rglob("*.md"))]
 MARKER = re.compile(r"^<!--\s*check-output:\s*(fast|slow)\s*-->\s*$")
 FENCE = re.compile(r"^(```|~~~)")
 SCRATCH_SKIP = {".git", "out"}
@@ -192,7 +192,7 @@ def check(files: list[str], tier: str, show: bool, timeout: float, out=None) -> 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("files", nargs="*", help="Markdown files, relative to the repository root "
-                                              "[default: README.md and docs/*.md]")
+                                              "[default: README.md and docs/**/*.md]")
     ap.add_argument("--fast", action="store_true", help="only the blocks marked fast")
     ap.add_argument("--show", action="store_true", help="print the commands' output now, compare nothing")
     ap.add_argument("--timeout", type=float, default=900, help="seconds per command [900]")

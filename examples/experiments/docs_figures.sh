@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Regenerate the README's results (the figures in docs/figures and the Table 1 rows):
+# Regenerate the results of docs/guides/experiments.md (the figures in docs/figures and the Table 1 rows):
 # bake the six benchmark models, run the five experiments, draw their figures, copy
-# those the README shows into docs/figures. Run on a quiet machine: Fig. 9 and the
+# those docs/guides/experiments.md shows into docs/figures. Run on a quiet machine: Fig. 9 and the
 # bake times are wall clock. Usage: bash examples/experiments/docs_figures.sh
 set -euo pipefail
 cd "$(dirname "$0")/../.."

@@ -19,7 +19,7 @@ namespace {
 
 struct CheckOptions {
   std::string bundle;            // bundle directory
-  bool json = false;             // machine-readable output (layout documented in the README)
+  bool json = false;             // machine-readable output (layout documented in docs/guides/runtime.md)
   bool verify_hashes = true;     // SHA-256 and size of every file against the manifest
 };
 

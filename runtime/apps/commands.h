@@ -9,7 +9,7 @@
 
 namespace hrt_cli {
 
-// Exit codes of `hrt` (documented in the README).
+// Exit codes of `hrt` (documented in docs/guides/runtime.md, "hrt check").
 enum ExitCode : int {
   kOk = 0,
   kUsage = 2,         // bad option or argument

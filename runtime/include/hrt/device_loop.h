@@ -266,7 +266,7 @@ class DeviceLoop {
 };
 
 // Percentiles of DeviceLoopStats::period_error (s), for the summary of
-// `hrt run` and the README's jitter figures: p50 and p99 interpolated
+// `hrt run` and the jitter figures of docs/guides/sessions.md: p50 and p99 interpolated
 // linearly between order statistics (numpy's default), the maximum, and the
 // number of samples (all 0 when there are none). Sorts a copy: call it after
 // stop(), not on the device thread.

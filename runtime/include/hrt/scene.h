@@ -87,7 +87,7 @@ struct ClusterOptions {
   // (examples/bench_runtime.sh) the windows of the rasp on the CAD part span
   // tens of millimetres over atlas texels of about 0.1 mm, so every patch
   // would run at the budget (128: about 4 to 6 times the force cost of the
-  // default N = 50, README table), and the per-frame budget of the paper's
+  // default N = 50, docs/guides/performance.md), and the per-frame budget of the paper's
   // scenes is N = 50. State reserves its depth buffers for max_resolution.
   bool auto_resolution = false;
   int max_resolution = 128;

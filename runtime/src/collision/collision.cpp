@@ -450,7 +450,7 @@ bool sphere_meets_box(const Eigen::Vector4d& s, const Vec3& lo, const Vec3& hi) 
 // tested: chunks of faces and edges by their boxes, then faces by their
 // bounding spheres and edges by segment-box tests. Exact, and in shallow
 // contact (the haptic case) it leaves a handful of features even for a
-// piece of hundreds (README: narrow-phase benchmark).
+// piece of hundreds (docs/guides/runtime.md: the narrow-phase benchmark).
 //
 // Frames: A's features in A's frame, B's in B's, x_B = R x_A + t. Sets
 // d = -depth (d > 0 when a face axis separates them: touching within GJK's
