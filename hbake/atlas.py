@@ -232,7 +232,7 @@ def _origins(corners3, bary, inside, uvs, t_ids, xs, ys, W, H, texel_size):
 def _closest_on_triangle_2d(q, a, b, c):
     """Nearest point of the boundary of 2D triangles (a, b, c) to points q outside them."""
     best = np.full(len(q), np.inf)
-    point = np.empty_like(q)
+    point = np.zeros_like(q)
     for s0, s1 in ((a, b), (b, c), (c, a)):
         e = s1 - s0
         t = np.clip(np.einsum("kd,kd->k", q - s0, e) / np.maximum(np.einsum("kd,kd->k", e, e), 1e-300), 0.0, 1.0)
@@ -348,7 +348,7 @@ def _cast(origin, normal, full_vertices, full_faces, max_distance, progress):
     used is the one along -normal)."""
     caster = RayCaster(full_vertices, full_faces)
     n = len(origin)
-    points = np.empty((n, 3))
+    points = np.zeros((n, 3))
     hit = np.zeros(n, dtype=bool)
     prim = np.full(n, -1, dtype=np.int64)
     alt = np.full((n, 3), np.nan)

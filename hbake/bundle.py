@@ -22,10 +22,8 @@ import os
 import re
 import secrets
 import shutil
-import stat
 import struct
 import sys
-import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -500,8 +498,8 @@ class _Footprints:
         q = np.roll(p, -1, axis=1)
         self.nx = np.ascontiguousarray(q[:, :, 1] - p[:, :, 1])
         self.ny = np.ascontiguousarray(p[:, :, 0] - q[:, :, 0])
-        self.tmin = np.empty_like(self.nx)
-        self.tmax = np.empty_like(self.nx)
+        self.tmin = np.zeros_like(self.nx)
+        self.tmax = np.zeros_like(self.nx)
         for k in range(3):
             n = np.ascontiguousarray(np.stack([self.nx[:, k], self.ny[:, k]], axis=-1))[:, :, None]
             proj = np.matmul(p, n)[:, :, 0]
@@ -721,10 +719,10 @@ def write_coarse_ply(path: str | os.PathLike, vertices: np.ndarray, faces: np.nd
         raise ValueError(f"coarse_uvs has {len(uv)} faces, coarse_faces {len(f)}")
     if len(f) and (f.min() < 0 or f.max() > np.iinfo(np.uint32).max):
         raise ValueError("coarse face indices do not fit uint32")
-    vert = np.empty(len(v), dtype=_XYZ)
+    vert = np.zeros(len(v), dtype=_XYZ)
     v32 = v.astype("<f4")
     vert["x"], vert["y"], vert["z"] = v32[:, 0], v32[:, 1], v32[:, 2]
-    rec = np.empty(len(f), dtype=_COARSE_FACE)
+    rec = np.zeros(len(f), dtype=_COARSE_FACE)
     rec["n"] = 3
     rec["idx"] = f.astype("<u4")
     rec["nuv"] = 6
@@ -755,11 +753,11 @@ def write_pieces_ply(path: str | os.PathLike, piece_vertices: list[np.ndarray],
         offset += len(pv)
     v = np.concatenate(verts) if verts else np.zeros((0, 3))
     f = np.concatenate(faces) if faces else np.zeros((0, 3), np.int64)
-    vrec = np.empty(len(v), dtype=_PIECE_VERTEX)
+    vrec = np.zeros(len(v), dtype=_PIECE_VERTEX)
     v32 = v.astype("<f4")
     vrec["x"], vrec["y"], vrec["z"] = v32[:, 0], v32[:, 1], v32[:, 2]
     vrec["piece"] = np.concatenate(vid) if vid else np.zeros(0, np.uint32)
-    frec = np.empty(len(f), dtype=_PIECE_FACE)
+    frec = np.zeros(len(f), dtype=_PIECE_FACE)
     frec["n"] = 3
     frec["idx"] = f.astype("<u4")
     frec["piece"] = np.concatenate(fid) if fid else np.zeros(0, np.uint32)
@@ -871,8 +869,8 @@ def _parse_pieces_lists(blob: bytes, name: str, add):
     # Walk the count prefixes with struct (a numpy call per piece costs ~1 us, which is
     # most of the parse for a file of many small pieces); the lists are then views of
     # one array read at once.
-    starts = np.empty(p, dtype=np.int64)
-    counts = np.empty(p, dtype=np.int64)
+    starts = np.zeros(p, dtype=np.int64)
+    counts = np.zeros(p, dtype=np.int64)
     pos = fixed
     size = len(blob)
     unpack = struct.Struct("<I").unpack_from

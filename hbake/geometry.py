@@ -34,8 +34,8 @@ def closest_point_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: n
     vc = d1 * d4 - d3 * d2
 
     shape = np.broadcast_shapes(d1.shape, d3.shape, d5.shape)
-    v = np.empty(shape)      # weight of b
-    w = np.empty(shape)      # weight of c
+    v = np.zeros(shape)      # weight of b
+    w = np.zeros(shape)      # weight of c
     with np.errstate(divide="ignore", invalid="ignore"):
         denom = va + vb + vc
         safe = np.where(denom != 0, denom, 1.0)
@@ -234,10 +234,10 @@ def unique_rows(a: np.ndarray):
     first_sorted = np.minimum.reduceat(order, starts) if len(a) else order
     group = np.cumsum(new) - 1
     # renumber groups by first occurrence so the result does not depend on sort order
-    rank = np.empty(len(starts), dtype=np.int64)
+    rank = np.zeros(len(starts), dtype=np.int64)
     by_first = np.argsort(first_sorted, kind="stable")
     rank[by_first] = np.arange(len(starts))
-    inverse = np.empty(len(a), dtype=np.int64)
+    inverse = np.zeros(len(a), dtype=np.int64)
     inverse[order] = rank[group]
     return first_sorted[by_first], inverse
 
@@ -300,7 +300,7 @@ def winding_numbers(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
     mesh), from the solid angles of the triangles (Van Oosterom and Strackee 1983).
     O(points x faces): meant for coarse meshes."""
     tri = vertices[faces]
-    out = np.empty(len(points))
+    out = np.zeros(len(points))
     for s in range(0, len(points), chunk):
         p = points[s:s + chunk]
         a = tri[None, :, 0] - p[:, None]

@@ -180,7 +180,7 @@ def split_long_charts(faces: np.ndarray, uvs: np.ndarray, cap: float):
         return uvs, None
     ids, piece = np.unique(piece, return_inverse=True)
     n = len(ids)
-    out = np.empty_like(uvs, dtype=np.float64)
+    out = np.zeros_like(uvs, dtype=np.float64)
     lo = np.full((n, 2), np.inf)
     hi = np.full((n, 2), -np.inf)
     np.minimum.at(lo, piece, uvs.min(axis=1))
@@ -317,7 +317,7 @@ def texel_candidates(lo: np.ndarray, hi: np.ndarray, chunk: int = 1 << 18):
 
 def texel_coordinates(uvs: np.ndarray, W: int, H: int) -> np.ndarray:
     """Continuous texel coordinates (x, y) of UVs (texel centres at integers, row 0 on top)."""
-    p = np.empty(uvs.shape[:-1] + (2,))
+    p = np.zeros(uvs.shape[:-1] + (2,))
     p[..., 0] = uvs[..., 0].astype(np.float64) * W - 0.5
     p[..., 1] = (1.0 - uvs[..., 1].astype(np.float64)) * H - 0.5
     return p

@@ -91,9 +91,9 @@ def _nearest_faces(tri: np.ndarray, points: np.ndarray, k: int, chunk: int = 1 <
 
     k = int(min(k, len(tri)))
     tree = cKDTree(tri.mean(axis=1))
-    face = np.empty(len(points), dtype=np.int64)
-    bary = np.empty((len(points), 3))
-    dist = np.empty(len(points))
+    face = np.zeros(len(points), dtype=np.int64)
+    bary = np.zeros((len(points), 3))
+    dist = np.zeros(len(points))
     for s in range(0, len(points), chunk):
         p = points[s:s + chunk]
         _, cand = tree.query(p, k=k)
@@ -123,7 +123,7 @@ def transfer_charts(full_vertices, full_faces, proxy_vertices, proxy_faces, prox
     ptri = pv[pf]
     face, _, _ = _nearest_faces(ptri, V[F].mean(axis=1), C.PRESERVE_NEAREST_FACES)
     chart = pchart[face]
-    uvs = np.empty((len(F), 3, 2))
+    uvs = np.zeros((len(F), 3, 2))
     for c in np.unique(chart):
         members = np.nonzero(pchart == c)[0]
         tris = np.nonzero(chart == c)[0]
@@ -320,7 +320,7 @@ def uv_containment(coarse_uvs, coarse_chart, full_uvs, full_chart, W: int, H: in
     pts = np.einsum("msk,mkd->msd", b, cp).reshape(-1, 2)
     chart = np.repeat(coarse_chart, samples_per_face)
     fp = texel_coordinates(np.asarray(full_uvs, dtype=np.float64), W, H)
-    out = np.empty(len(pts))
+    out = np.zeros(len(pts))
     for c in np.unique(chart):
         sel = np.nonzero(chart == c)[0]
         tri = np.concatenate([fp[full_chart == c], np.zeros((int((full_chart == c).sum()), 3, 1))], axis=2)

@@ -91,18 +91,18 @@ def surface_mesh(faces: np.ndarray, uvs: np.ndarray, atlas: np.ndarray, max_tria
     tex = uv * np.array([W, H])
     edge = np.max(np.linalg.norm(tex - np.roll(tex, 1, axis=1), axis=2), axis=1)
     k = int(max(1, min(math.floor(math.sqrt(max_triangles / F)), math.ceil(float(np.max(edge))))))
-    I, J = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
-    inside = I + J <= k
-    I, J = I[inside], J[inside]                       # grid points: weight I / k on corner 1, J / k on 2
-    P = len(I)
-    w = np.stack([k - I - J, I, J], axis=1) / k       # (P, 3) barycentric weights
+    gi, gj = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
+    inside = gi + gj <= k
+    gi, gj = gi[inside], gj[inside]                       # grid points: weight gi / k on corner 1, gj / k on 2
+    P = len(gi)
+    w = np.stack([k - gi - gj, gi, gj], axis=1) / k       # (P, 3) barycentric weights
     pts_uv = np.einsum("pc,fcd->fpd", w, uv)          # (F, P, 2)
     pos = atlas_lookup(atlas, pts_uv.reshape(-1, 2))[:, :3]
     # Keys that are equal for the same point of the coarse mesh seen from two faces:
     # a corner is its vertex; a point of an edge is (lower vertex, higher vertex, steps from
     # the lower); an interior point is its face's own.
     va, vb, vc = f[:, 0:1], f[:, 1:2], f[:, 2:3]
-    a, b, c = (k - I - J)[None, :], I[None, :], J[None, :]
+    a, b, c = (k - gi - gj)[None, :], gi[None, :], gj[None, :]
     key = np.zeros((F, P, 3), dtype=np.int64)
     key[..., 0] = -1 - np.arange(F)[:, None]          # interior: (-1 - face, point, 0)
     key[..., 1] = np.arange(P)[None, :]
@@ -114,9 +114,9 @@ def surface_mesh(faces: np.ndarray, uvs: np.ndarray, atlas: np.ndarray, max_tria
         for d, val in enumerate((lo, hi, t)):
             key[..., d] = np.where(sel, np.broadcast_to(val, (F, P)), key[..., d])
 
-    on_edge(a == 0, vb, vc, c)        # edge 1-2: steps from corner 1 = J
-    on_edge(b == 0, va, vc, c)        # edge 0-2: steps from corner 0 = J
-    on_edge(c == 0, va, vb, b)        # edge 0-1: steps from corner 0 = I
+    on_edge(a == 0, vb, vc, c)        # edge 1-2: steps from corner 1 = gj
+    on_edge(b == 0, va, vc, c)        # edge 0-2: steps from corner 0 = gj
+    on_edge(c == 0, va, vb, b)        # edge 0-1: steps from corner 0 = gi
     for corner, vx in ((a == k, va), (b == k, vb), (c == k, vc)):
         sel = np.broadcast_to(corner, (F, P))
         for d, val in enumerate((vx, vx, 0 * vx)):
@@ -127,7 +127,7 @@ def surface_mesh(faces: np.ndarray, uvs: np.ndarray, atlas: np.ndarray, max_tria
     # Small triangles of the grid, wound like their face: (i, j), (i + 1, j), (i, j + 1)
     # and (i + 1, j), (i + 1, j + 1), (i, j + 1).
     at = -np.ones((k + 1, k + 1), dtype=np.int64)
-    at[I, J] = np.arange(P)
+    at[gi, gj] = np.arange(P)
     ti, tj = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
     up = ti + tj <= k - 1
     down = ti + tj <= k - 2

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import subprocess
 from pathlib import Path
 
@@ -189,7 +188,8 @@ def run_scene(folder: Path, name: str, tables: dict, *args, timeout=900) -> dict
 
 
 if __name__ == "__main__":
-    import sys, time
+    import sys
+    import time
     root = Path(sys.argv[1] if len(sys.argv) > 1 else "/tmp/sess")
     for n in sys.argv[2:] or list(OWN):
         t = time.perf_counter()

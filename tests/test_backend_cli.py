@@ -26,7 +26,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import hrt_locate
 import sessions as S
 import trace as T
 
@@ -41,11 +40,6 @@ USAGE, SCENE, GL = 2, 4, 7
 CRASH_MARKERS = ("Traceback", "terminate called", "what():", "Aborted", "core dumped", "Segmentation",
                  "internal error")
 TIMING_COLUMNS = {c for c, unit, _, _ in T.spec_table(T.TRACE_SECTION) if unit == "us"}
-
-
-@pytest.fixture(scope="module")
-def hrt():
-    return hrt_locate.hrt_binary("the --backend tests")
 
 
 def env(**extra) -> dict:

@@ -301,7 +301,7 @@ def _point_triangle_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.
     cp = p - c
     d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
     va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    q = np.empty_like(p)
+    q = np.zeros_like(p)
     done = np.zeros(len(p), dtype=bool)
 
     def put(mask, value):
@@ -338,7 +338,7 @@ def _closest_distance(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     reach = float(np.max(np.linalg.norm(tri - cen[:, None, :], axis=2)))
     d0, _ = cKDTree(mesh.vertices).query(points)
     cand = cKDTree(cen).query_ball_point(points, d0 * (1 + 1e-9) + reach)
-    out = np.empty(len(points))
+    out = np.zeros(len(points))
     for i, c in enumerate(cand):
         t = tri[np.asarray(c, dtype=np.int64)]
         p = np.repeat(points[i:i + 1], len(t), axis=0)

@@ -35,7 +35,7 @@ import fullsurface as FS
 import sessions as S
 import trace as T
 from hbake import procedural as P
-from test_session_cli import RES, SLAB_TOP, hrt, hrt_run, models, objects, write_scene  # noqa: F401
+from test_session_cli import RES, SLAB_TOP, hrt_run, objects, write_scene
 
 MM = 1e-3
 H = 1e-3                    # s: the scripted device's period and the simulation's frame (lockstep, 1 kHz)
@@ -102,7 +102,7 @@ def run(hrt, folder: Path, name: str, tables: dict):
 
 @pytest.mark.parametrize("start", ["clear", "resting"])
 @pytest.mark.parametrize("probe", ["block", "tip"])
-def test_a_jump_into_the_slab_keeps_an_upward_force_and_a_bounded_depth(models, hrt, tmp_path, probe, start):
+def test_a_jump_into_the_slab_keeps_an_upward_force_and_a_bounded_depth(session_bakes, hrt, tmp_path, probe, start):
     half = HALF[probe]
     z_touch = SLAB_TOP + half            # the probe's z when it just touches the slab's top
     # Held 0.05 mm clear of the slab (several times the contact tolerance, 15-55 um: no
@@ -115,12 +115,12 @@ def test_a_jump_into_the_slab_keeps_an_upward_force_and_a_bounded_depth(models, 
                               [(0, 0, 0, 1.0)] * 4)
     summary, tr = run(hrt, tmp_path, "jump", {
         "run": {"duration": 0.4, "lockstep": True},
-        "object": objects(models, probe, (0.0, 0.0, z_touch + max(hold, 0.0))),
+        "object": objects(session_bakes, probe, (0.0, 0.0, z_touch + max(hold, 0.0))),
         "force": {"resolution": RES},
         "device": {"trajectory": traj},
         "trace": {"path": tmp_path / "trace.csv"},
     })
-    tol = tolerance(models[probe], models["slab"])
+    tol = tolerance(session_bakes[probe], session_bakes["slab"])
     z = tr["probe_z"]
     depth = z_touch - z
     fz = tr["contact_fz"]
@@ -136,7 +136,7 @@ def test_a_jump_into_the_slab_keeps_an_upward_force_and_a_bounded_depth(models, 
     #   (stiffness k) and pushes back; 0.05 mm of room for the contact's texel-scale details.
     target_depth = JUMP - hold
     d0 = -hold if start == "clear" else K_COUPLING / (K_CONTACT + K_COUPLING) * -hold
-    deepest = d0 + plunge(models[probe], JUMP, -hold - d0) + 0.05 * MM
+    deepest = d0 + plunge(session_bakes[probe], JUMP, -hold - d0) + 0.05 * MM
     # - settled: the contact (k per metre of depth, along +z) and the coupling (k_c, towards
     #   the target) share the target's depth: d_eq = k_c D / (k + k_c) = 6.67 mm; within
     #   0.2 mm (the tip's coarse sphere is a few um inside its radius, the texture model's
@@ -171,12 +171,12 @@ def test_a_jump_into_the_slab_keeps_an_upward_force_and_a_bounded_depth(models, 
 
 @pytest.mark.parametrize("target", ["same", "surface"])
 @pytest.mark.parametrize("probe", ["block", "tip"])
-def test_a_probe_that_starts_deep_is_pushed_out(models, deep_box, hrt, tmp_path, probe, target):
+def test_a_probe_that_starts_deep_is_pushed_out(session_bakes, deep_box, hrt, tmp_path, probe, target):
     half = HALF[probe]
     z_touch = SLAB_TOP + half
     z0 = z_touch - JUMP
     z_target = z0 if target == "same" else z_touch
-    objs = objects(models, probe, (0.0, 0.0, z0))
+    objs = objects(session_bakes, probe, (0.0, 0.0, z0))
     objs[1] = {"name": "box", "bundle": deep_box.bundle, "position": [0.0, 0.0, DEEP_BOX_Z]}
     summary, tr = run(hrt, tmp_path, "start", {
         "run": {"duration": 0.3, "lockstep": True},
@@ -186,7 +186,7 @@ def test_a_probe_that_starts_deep_is_pushed_out(models, deep_box, hrt, tmp_path,
                                                     [(0, 0, 0, 1.0)] * 2)},
         "trace": {"path": tmp_path / "trace.csv"},
     })
-    tol = tolerance(models[probe], deep_box)
+    tol = tolerance(session_bakes[probe], deep_box)
     z, t, fz = tr["probe_z"], tr["t"], tr["contact_fz"]
     depth = z_touch - z
     # Bounds fixed before the run: with the target where the probe starts, the springs share

@@ -26,7 +26,6 @@ import numpy as np
 import pytest
 
 import fullsurface as FS
-from hrt_locate import hrt_binary
 
 
 #: Step of a path, in A's atlas texels (issue 8).
@@ -73,16 +72,6 @@ FIG7_SPACING = 0.29 * FS.MM
 FIG7_RATIO = 0.05
 FIG7_MIN_DELTA = 0.1 * FS.GRATING_A
 FIG7_N = 50
-
-
-@pytest.fixture(scope="session")
-def models(tmp_path_factory):
-    return FS.session_models(tmp_path_factory)
-
-
-@pytest.fixture(scope="session")
-def hrt():
-    return hrt_binary("the depth continuity tests run hrt query")
 
 
 def _scene(models, group, index):

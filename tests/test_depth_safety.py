@@ -13,21 +13,9 @@ the constructed case: its side pieces give patches whose n runs through both blo
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 import fullsurface as FS
-from hrt_locate import hrt_binary
 
-
-
-@pytest.fixture(scope="session")
-def models(tmp_path_factory):
-    return FS.session_models(tmp_path_factory)
-
-
-@pytest.fixture(scope="session")
-def hrt():
-    return hrt_binary("the patch-safety tests run hrt query")
 
 
 def test_safety_patches(hrt, models):

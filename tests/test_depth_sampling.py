@@ -14,18 +14,7 @@ import time
 import pytest
 
 import fullsurface as FS
-from hrt_locate import hrt_binary
 
-
-
-@pytest.fixture(scope="session")
-def models(tmp_path_factory):
-    return FS.session_models(tmp_path_factory)
-
-
-@pytest.fixture(scope="session")
-def hrt():
-    return hrt_binary("the depth sampling tests run hrt query")
 
 
 def _runs(hrt, models, group):

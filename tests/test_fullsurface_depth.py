@@ -29,25 +29,13 @@ the key covers the mesh, the settings and hbake's sources).
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
 
 import fullsurface as FS
-from hrt_locate import hrt_binary
 
 CI = FS.CI
-
-
-@pytest.fixture(scope="session")
-def models(tmp_path_factory):
-    return FS.session_models(tmp_path_factory)
-
-
-@pytest.fixture(scope="session")
-def hrt():
-    return hrt_binary("the full-surface depth tests run hrt query")
 
 
 def _runs(hrt, models, group):

@@ -37,20 +37,9 @@ import pytest
 
 import fullsurface as FS
 import thinfeatures as TF
-from hrt_locate import hrt_binary
 
 HEIGHT_ULPS = 8.0
 EPS32 = 2.0 ** -24
-
-
-@pytest.fixture(scope="module")
-def models(tmp_path_factory):
-    return FS.session_models(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
-def hrt():
-    return hrt_binary("the GL backend tests run hrt query")
 
 
 def atlas_radius(model) -> float:

@@ -61,7 +61,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import fullsurface as FS
-from hrt_locate import hrt_binary
 
 MM = 1e-3
 #: Offsets s across the ridges from the nested position (mm): within one grid texel of
@@ -96,11 +95,6 @@ def grating(tmp_path_factory):
     root = Path(os.environ.get("FULLSURFACE_CACHE") or tmp_path_factory.getbasetemp() / "fullsurface")
     FS._MODELS["grating"] = FS.bake_model("grating", root)
     return FS._MODELS["grating"]
-
-
-@pytest.fixture(scope="module")
-def hrt():
-    return hrt_binary("the gradient-kink test runs hrt query")
 
 
 def nested_pose():

@@ -9,7 +9,6 @@ import os
 import subprocess
 from pathlib import Path
 
-import pytest
 import trimesh
 
 REPO = Path(__file__).resolve().parents[1]

@@ -39,11 +39,10 @@ import pytest
 import trimesh
 
 import fullsurface as FS
-from hrt_locate import hrt_binary
 from scipy.spatial.transform import Rotation
 
 from hbake import procedural as P
-from hbake.bundle import atlas_lookup, read_bundle, texel_coords
+from hbake.bundle import read_bundle
 from hbake.geometry import closest_points
 
 REPO = Path(__file__).resolve().parents[1]
@@ -106,11 +105,6 @@ def bakes(tmp_path_factory):
         _BAKES["sphere"] = bake_cli("sphere", FS.make_sphere(), ARGS, root)
         print("\nbakes: " + ", ".join(f"{k} {m.bake_s:.1f} s" for k, m in _BAKES.items()))
     return _BAKES
-
-
-@pytest.fixture(scope="session")
-def hrt():
-    return hrt_binary("the preserve route's depth tests run hrt query")
 
 
 # ----------------------------------------------------------------------------------------
@@ -205,7 +199,7 @@ def test_torus_coarse_uvs_inside_their_charts(bakes, tmp_path):
 
 def texel_coordinates_of(uv, W, H):
     """docs/bundle-format.md: x = u W - 0.5, y = (1 - v) H - 0.5."""
-    out = np.empty(uv.shape)
+    out = np.zeros(uv.shape)
     out[..., 0] = uv[..., 0] * W - 0.5
     out[..., 1] = (1 - uv[..., 1]) * H - 0.5
     return out

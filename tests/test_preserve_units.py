@@ -10,7 +10,6 @@ passed.
 """
 from __future__ import annotations
 
-import dataclasses
 import os
 from pathlib import Path
 

@@ -7,6 +7,8 @@ import json
 import os
 import subprocess
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -158,7 +160,7 @@ def test_no_leak_over_many_queries(models):
 # ----------------------------------------------------------------------------
 
 
-def session_scene(tmp_path, name: str) -> "Path":
+def session_scene(tmp_path, name: str) -> Path:
     """The pebble pressed into the bumpy blob and slid 2 mm across it at a 23-degree heading,
     turned by 0.3 rad, over 0.3 s (a scripted device; friction on)."""
     import sessions as S

@@ -33,18 +33,18 @@ import pytest
 
 import sessions as S
 import trace as T
-from test_session_cli import (CRASH_MARKERS, RES, SLAB_TOP, assert_one_clean_line, example_plugin, hrt,  # noqa: F401
-                              hrt_run, models, objects, still, write_scene)
+from test_session_cli import (CRASH_MARKERS, RES, SLAB_TOP, assert_one_clean_line, example_plugin,  # noqa: F401
+                              hrt_run, objects, still, write_scene)
 
 MM = 1e-3
 GIB = 1 << 30
 
 
-def _tables(models, tmp_path, **over):
+def _tables(session_bakes, tmp_path, **over):
     z = SLAB_TOP + S.TIP_R + 1 * MM
     t = {
         "run": {"duration": 0.05, "lockstep": True},
-        "object": objects(models, "tip", (0.0, 0.0, z)),
+        "object": objects(session_bakes, "tip", (0.0, 0.0, z)),
         "force": {"resolution": RES},
         "device": {"trajectory": still(tmp_path / "still.csv", (0.0, 0.0, z))},
     }
@@ -95,7 +95,7 @@ MAX_F, MAX_T, SOFT = 4.0, 0.05, 0.5
 
 
 @pytest.mark.parametrize("kind", ["scripted", "virtual"])
-def test_soft_start_bounds_the_output_at_every_tick_with_the_probe_deep_inside(models, hrt, tmp_path, kind):
+def test_soft_start_bounds_the_output_at_every_tick_with_the_probe_deep_inside(session_bakes, hrt, tmp_path, kind):
     # The block's target 5 mm inside the slab from t = 0, the block itself starting 0.05 mm in,
     # tilted 0.02 rad so the contact has a torque. A stiff contact (1e5 N/m: 5 N at 50 um)
     # holds the block near the surface, so the coupling (2000 N/m) asks for about
@@ -107,7 +107,7 @@ def test_soft_start_bounds_the_output_at_every_tick_with_the_probe_deep_inside(m
     log_path, trace_path = tmp_path / "ticks.csv", tmp_path / "trace.csv"
     scene = write_scene(tmp_path, "deep", {
         "run": {"duration": 0.8, "lockstep": True},
-        "object": objects(models, "block", (0.0, 0.0, z - 0.05 * MM), q),
+        "object": objects(session_bakes, "block", (0.0, 0.0, z - 0.05 * MM), q),
         "force": {"resolution": RES, "stiffness": 1e5},
         "device": {**({"trajectory": still(tmp_path / "deep.csv", (0.0, 0.0, z - 5 * MM), q)} if kind == "scripted"
                       else {"type": "virtual", "start_position": [0.0, 0.0, z - 5 * MM], "start_orientation": q}),
@@ -139,7 +139,7 @@ def test_soft_start_bounds_the_output_at_every_tick_with_the_probe_deep_inside(m
     assert np.all(ft <= np.clip(tr["device_t"] / SOFT, 0, 1) * MAX_F)
 
 
-def test_the_force_clamp_never_exceeds_the_limit_by_rounding(models, hrt, tmp_path):
+def test_the_force_clamp_never_exceeds_the_limit_by_rounding(session_bakes, hrt, tmp_path):
     # The tip's target dragged 4 mm deep along a circle over a stiff contact (1e5 N/m): the
     # coupling asks for about 2000 N/m x 4 mm = 8 N, the clamp bites for most of the 0.6 s with
     # the direction turning. Every written force's norm, computed four ways, is <= 5 N exactly
@@ -151,7 +151,7 @@ def test_the_force_clamp_never_exceeds_the_limit_by_rounding(models, hrt, tmp_pa
     log_path = tmp_path / "clamp.csv"
     scene = write_scene(tmp_path, "clamp", {
         "run": {"duration": 0.6, "lockstep": True},
-        "object": objects(models, "tip", (3 * MM, 0.0, SLAB_TOP + S.TIP_R - 0.05 * MM)),
+        "object": objects(session_bakes, "tip", (3 * MM, 0.0, SLAB_TOP + S.TIP_R - 0.05 * MM)),
         "force": {"resolution": RES, "stiffness": 1e5},
         "device": {"trajectory": traj, "max_force": 5.0},
         "loop": {"soft_start": 0.01},
@@ -183,13 +183,13 @@ def _test_plugin(hrt, case: str) -> Path:
     return p
 
 
-def _plugin_scene(models, tmp_path, plugin, name="plugin", duration=10.0, trace=True, config=""):
+def _plugin_scene(session_bakes, tmp_path, plugin, name="plugin", duration=10.0, trace=True, config=""):
     # The test plugins hold the handle at the device's origin: the workspace offset puts
     # that 5 cm above the slab, clear of it.
     z = 0.05
     t = {
         "run": {"duration": duration},
-        "object": objects(models, "tip", (0.0, 0.0, z)),
+        "object": objects(session_bakes, "tip", (0.0, 0.0, z)),
         "force": {"resolution": RES},
         "workspace": {"offset_position": [0.0, 0.0, z]},
         "device": {"type": "plugin", "plugin": plugin, "config": config},
@@ -199,9 +199,9 @@ def _plugin_scene(models, tmp_path, plugin, name="plugin", duration=10.0, trace=
     return write_scene(tmp_path, name, t)
 
 
-def test_a_plugin_whose_read_blocks_ends_the_session_with_exit_5(models, hrt, tmp_path):
+def test_a_plugin_whose_read_blocks_ends_the_session_with_exit_5(session_bakes, hrt, tmp_path):
     plugin = _test_plugin(hrt, "blocking_read")
-    scene = _plugin_scene(models, tmp_path, plugin, "blocking", duration=300.0)
+    scene = _plugin_scene(session_bakes, tmp_path, plugin, "blocking", duration=300.0)
     t0 = time.monotonic()
     res = hrt_run(hrt, scene, "--realtime", timeout=120)
     wall = time.monotonic() - t0
@@ -214,11 +214,11 @@ def test_a_plugin_whose_read_blocks_ends_the_session_with_exit_5(models, hrt, tm
     assert (tmp_path / "blocking-trace.csv").is_file()  # the trace of what ran is written
 
 
-def test_sigterm_before_the_stall_is_exit_130(models, hrt, tmp_path):
+def test_sigterm_before_the_stall_is_exit_130(session_bakes, hrt, tmp_path):
     plugin = _test_plugin(hrt, "blocking_read")
     # block_after=20: the plugin gives poses for 20 s of session time; SIGTERM comes first,
     # once the session runs (its trace's .partial exists).
-    scene = _plugin_scene(models, tmp_path, plugin, "term", duration=30.0, config="block_after=20")
+    scene = _plugin_scene(session_bakes, tmp_path, plugin, "term", duration=30.0, config="block_after=20")
     p = subprocess.Popen([hrt, "run", str(scene), "--realtime", "--quiet"], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True)
     t0 = time.monotonic()
@@ -235,13 +235,13 @@ def test_sigterm_before_the_stall_is_exit_130(models, hrt, tmp_path):
 
 
 @pytest.mark.parametrize("size", ["2000", "half", "minus1"])
-def test_a_truncated_plugin_is_refused_before_loading(models, hrt, tmp_path, size):
+def test_a_truncated_plugin_is_refused_before_loading(session_bakes, hrt, tmp_path, size):
     src = example_plugin(hrt)
     cut = tmp_path / "cut.so"
     shutil.copy(src, cut)
     n = {"2000": 2000, "half": src.stat().st_size // 2, "minus1": src.stat().st_size - 1}[size]
     os.truncate(cut, n)
-    scene = _plugin_scene(models, tmp_path, cut, "cut", duration=0.2, trace=False)
+    scene = _plugin_scene(session_bakes, tmp_path, cut, "cut", duration=0.2, trace=False)
     res = hrt_run(hrt, scene, "--realtime", timeout=30)
     _failed(res, 5, cut)
 
@@ -251,21 +251,21 @@ def test_a_truncated_plugin_is_refused_before_loading(models, hrt, tmp_path, siz
 # ----------------------------------------------------------------------------
 
 
-def test_fifo_and_device_inputs_are_refused_by_name(models, hrt, tmp_path):
+def test_fifo_and_device_inputs_are_refused_by_name(session_bakes, hrt, tmp_path):
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)
     # The scene itself.
     _failed(hrt_run(hrt, fifo, timeout=10), 4, fifo, "is a FIFO")
     _failed(hrt_run(hrt, "/dev/zero", timeout=10), 4, "/dev/zero", "is a character device")
     # The device's trajectory, an object's trajectory, the plugin.
-    t = _tables(models, tmp_path)
+    t = _tables(session_bakes, tmp_path)
     t["device"]["trajectory"] = fifo
     _failed(hrt_run(hrt, write_scene(tmp_path, "tfifo", t), timeout=10), 4, "device.trajectory", "is a FIFO")
-    t = _tables(models, tmp_path)
+    t = _tables(session_bakes, tmp_path)
     t["object"][1]["trajectory"] = "/dev/zero"
     _failed(hrt_run(hrt, write_scene(tmp_path, "ozero", t), timeout=10), 4, "object[1].trajectory",
             "is a character device")
-    t = _tables(models, tmp_path)
+    t = _tables(session_bakes, tmp_path)
     t["run"] = {"duration": 0.05}
     t["device"] = {"type": "plugin", "plugin": fifo}
     _failed(hrt_run(hrt, write_scene(tmp_path, "pfifo", t), timeout=10), 4, "device.plugin", "is a FIFO")
@@ -276,12 +276,12 @@ def test_fifo_and_device_inputs_are_refused_by_name(models, hrt, tmp_path):
 # ----------------------------------------------------------------------------
 
 
-def test_no_output_may_be_an_input(models, hrt, tmp_path):
-    t = _tables(models, tmp_path)
+def test_no_output_may_be_an_input(session_bakes, hrt, tmp_path):
+    t = _tables(session_bakes, tmp_path)
     traj = Path(t["device"]["trajectory"])
     scene = write_scene(tmp_path, "guard", t)
     before = {p: p.read_bytes() for p in (traj, scene)}
-    manifest = Path(models["slab"].bundle) / "manifest.json"
+    manifest = Path(session_bakes["slab"].bundle) / "manifest.json"
     manifest_bytes = manifest.read_bytes()
     # From the command line: the device's trajectory, the scene, a bundle's file, via a symlink.
     link = tmp_path / "link.csv"
@@ -297,11 +297,11 @@ def test_no_output_may_be_an_input(models, hrt, tmp_path):
             continue
         _failed(res, 6, args[1], needle, "would destroy an input")
     # From the scene file: [trace] path = the scene itself, device_log = a manifest.
-    t2 = _tables(models, tmp_path)
+    t2 = _tables(session_bakes, tmp_path)
     t2["trace"] = {"path": tmp_path / "self.toml"}
     selfscene = write_scene(tmp_path, "self", t2)
     _failed(hrt_run(hrt, selfscene), 6, "trace.path", "the scene file")
-    t3 = _tables(models, tmp_path)
+    t3 = _tables(session_bakes, tmp_path)
     t3["trace"] = {"device_log": manifest}
     _failed(hrt_run(hrt, write_scene(tmp_path, "man", t3)), 6, "trace.device_log", "bundle")
     # A hard link to the trajectory is the same file.
@@ -320,34 +320,34 @@ def test_no_output_may_be_an_input(models, hrt, tmp_path):
 # ----------------------------------------------------------------------------
 
 
-def test_sizes_are_checked_before_allocating(models, hrt, tmp_path):
-    t = _tables(models, tmp_path)
+def test_sizes_are_checked_before_allocating(session_bakes, hrt, tmp_path):
+    t = _tables(session_bakes, tmp_path)
     t["trace"] = {"device_log": tmp_path / "log.csv"}
     scene = write_scene(tmp_path, "sizes", t)
     # --duration on the command line cannot bypass the device-log limit.
     _failed(hrt_run(hrt, scene, "--duration", "20000", timeout=30), 2, "--duration", "log_capacity", "2000000")
     # A period of 1 ns (2e8 ticks for 0.2 s) and a 10^7-row log are outside their ranges.
-    t = _tables(models, tmp_path)
+    t = _tables(session_bakes, tmp_path)
     t["loop"] = {"period": 1e-9}
     _failed(hrt_run(hrt, write_scene(tmp_path, "period", t), timeout=30), 4, "loop.period", "between")
-    t = _tables(models, tmp_path)
+    t = _tables(session_bakes, tmp_path)
     t["loop"] = {"log_capacity": 10_000_000}
     _failed(hrt_run(hrt, write_scene(tmp_path, "cap", t), timeout=30), 4, "loop.log_capacity", "between")
-    t = _tables(models, tmp_path)
+    t = _tables(session_bakes, tmp_path)
     t["run"]["duration"] = 3e5
     _failed(hrt_run(hrt, write_scene(tmp_path, "long", t), timeout=30), 4, "run.duration", "between")
     # hrt query: a resolution past the limit is a usage error, not 2 GB.
-    b = models["slab"].bundle
+    b = session_bakes["slab"].bundle
     res = subprocess.run([hrt, "query", str(b), str(b), "--pose-a", *"0 0 0 0 0 0 1".split(),
                           "--pose-b", *"0 0 0.005 0 0 0 1".split(), "--resolution", "4096"],
                          capture_output=True, text=True, timeout=60)
     _failed(res, 2, "resolution", "1024")
 
 
-def test_the_largest_accepted_values_stay_under_a_gibibyte(models, hrt, tmp_path):
+def test_the_largest_accepted_values_stay_under_a_gibibyte(session_bakes, hrt, tmp_path):
     # The largest device log the reader accepts, for a 0.2 s session: allocated for the
     # session's ticks, not for the capacity.
-    t = _tables(models, tmp_path)
+    t = _tables(session_bakes, tmp_path)
     t["run"]["duration"] = 0.2
     t["loop"] = {"log_capacity": 2_000_000}
     t["trace"] = {"device_log": tmp_path / "biglog.csv"}
@@ -356,7 +356,7 @@ def test_the_largest_accepted_values_stay_under_a_gibibyte(models, hrt, tmp_path
     print(f"log_capacity = 2e6, 0.2 s: peak RSS {rss / 2**20:.0f} MiB")
     assert rss < GIB
     # The largest resolution hrt query accepts, on the tip pressed into the slab.
-    tip, slab = models["tip"].bundle, models["slab"].bundle
+    tip, slab = session_bakes["tip"].bundle, session_bakes["slab"].bundle
     z = SLAB_TOP + S.TIP_R - 0.3 * MM
     rc, err, rss = _peak_rss([hrt, "query", str(tip), str(slab), "--pose-a", "0", "0", repr(z), "0", "0", "0", "1",
                               "--pose-b", *"0 0 0 0 0 0 1".split(), "--resolution", "1024"])
@@ -365,8 +365,8 @@ def test_the_largest_accepted_values_stay_under_a_gibibyte(models, hrt, tmp_path
     assert rss < GIB
 
 
-def test_realtime_traces_are_thinned_to_the_rate_and_capped(models, hrt, tmp_path):
-    t = _tables(models, tmp_path)
+def test_realtime_traces_are_thinned_to_the_rate_and_capped(session_bakes, hrt, tmp_path):
+    t = _tables(session_bakes, tmp_path)
     t["run"] = {"duration": 1.0}  # real time: frames out of contact run at several kHz
     trace_path = tmp_path / "rt.csv"
     t["trace"] = {"path": trace_path}
@@ -400,8 +400,8 @@ def test_realtime_traces_are_thinned_to_the_rate_and_capped(models, hrt, tmp_pat
     ("loop", "soft_start", 1e5), ("loop", "watchdog", 1e-6), ("workspace", "scale", 1e9),
     ("friction", "mu_static", 1e3), ("force", "fade_time", 1e4), ("loop", "max_force_rate", 1e300),
 ])
-def test_values_outside_their_documented_range_are_refused(models, hrt, tmp_path, table, key, value):
-    t = _tables(models, tmp_path)
+def test_values_outside_their_documented_range_are_refused(session_bakes, hrt, tmp_path, table, key, value):
+    t = _tables(session_bakes, tmp_path)
     t.setdefault(table, {})[key] = value
     line = _failed(hrt_run(hrt, write_scene(tmp_path, f"{table}-{key}", t)), 4, f"{table}.{key}", "between")
     # The range is the one docs/scene-format.md gives.
@@ -417,14 +417,14 @@ def test_values_outside_their_documented_range_are_refused(models, hrt, tmp_path
 # ----------------------------------------------------------------------------
 
 
-def test_messages_are_short_and_printable(models, hrt, tmp_path):
-    t = _tables(models, tmp_path)
+def test_messages_are_short_and_printable(session_bakes, hrt, tmp_path):
+    t = _tables(session_bakes, tmp_path)
     t["run"]["backend"] = "x" * 900_000  # under the 1 MiB scene limit
     line = _failed(hrt_run(hrt, write_scene(tmp_path, "big", t)), 4, "run.backend")
     assert len(line) < 1200
     traj = tmp_path / "nul.csv"
     traj.write_bytes(b"t,x,y,z,qx,qy,qz,qw\n0,0,0,0\x00\x1b[31m,0,0,0,1\n")
-    t = _tables(models, tmp_path)
+    t = _tables(session_bakes, tmp_path)
     t["device"]["trajectory"] = traj
     res = subprocess.run([hrt, "run", str(write_scene(tmp_path, "nul", t))], capture_output=True, timeout=30)
     assert res.returncode == 4
@@ -449,8 +449,8 @@ def test_messages_are_short_and_printable(models, hrt, tmp_path):
 # ----------------------------------------------------------------------------
 
 
-def test_the_summary_reports_achieved_rates(models, hrt, tmp_path):
-    t = _tables(models, tmp_path)
+def test_the_summary_reports_achieved_rates(session_bakes, hrt, tmp_path):
+    t = _tables(session_bakes, tmp_path)
     t["run"] = {"duration": 1.0}
     scene = write_scene(tmp_path, "rates", t)
     res = hrt_run(hrt, scene, "--json", timeout=60)

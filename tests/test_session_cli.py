@@ -52,21 +52,10 @@ _spec.loader.exec_module(U)
 # ----------------------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def models(tmp_path_factory):
-    root = Path(tmp_path_factory.getbasetemp() / "sessions")
-    return {n: S.bake(n, root) for n in ("tip", "block", "slab")}
-
-
-@pytest.fixture(scope="module")
-def hrt():
-    return S.hrt_binary()
-
-
-def objects(models, probe, position, orientation=(0.0, 0.0, 0.0, 1.0)):
-    return [{"name": probe, "bundle": models[probe].bundle, "position": list(position),
+def objects(session_bakes, probe, position, orientation=(0.0, 0.0, 0.0, 1.0)):
+    return [{"name": probe, "bundle": session_bakes[probe].bundle, "position": list(position),
              "orientation": list(orientation)},
-            {"name": "slab", "bundle": models["slab"].bundle}]
+            {"name": "slab", "bundle": session_bakes["slab"].bundle}]
 
 
 def write_scene(folder: Path, name: str, tables: dict) -> Path:
@@ -199,12 +188,12 @@ def _bad_packets(seq: int, t: float, last_seq: int):
     ]
 
 
-def test_udp_device_end_to_end(models, hrt, tmp_path):
+def test_udp_device_end_to_end(session_bakes, hrt, tmp_path):
     port = free_udp_port()
     trace_path = tmp_path / "udp-trace.csv"
     scene = write_scene(tmp_path, "udp", {
         "run": {"duration": 3.0},
-        "object": objects(models, "tip", (0.0, 0.0, UDP_Z0)),
+        "object": objects(session_bakes, "tip", (0.0, 0.0, UDP_Z0)),
         "device": {"type": "udp", "port": port, "bind": "127.0.0.1"},
         "loop": {"soft_start": 0.1},
         "trace": {"path": trace_path},
@@ -353,11 +342,11 @@ def test_udp_device_end_to_end(models, hrt, tmp_path):
 PLUGIN_R, PLUGIN_T, PLUGIN_Z = 0.01, 0.5, SLAB_TOP + S.TIP_R - 0.2 * MM
 
 
-def test_plugin_device_through_a_scene(models, hrt, tmp_path):
+def test_plugin_device_through_a_scene(session_bakes, hrt, tmp_path):
     plugin = example_plugin(hrt)
     trace_path = tmp_path / "plugin-trace.csv"
     scene = write_scene(tmp_path, "plugin", {
-        "object": objects(models, "tip", (0.0, 0.0, PLUGIN_Z)),
+        "object": objects(session_bakes, "tip", (0.0, 0.0, PLUGIN_Z)),
         "device": {"type": "plugin", "plugin": plugin,
                    "config": f"path=line radius={PLUGIN_R} period={PLUGIN_T} z={PLUGIN_Z} name=itest-line"},
         "loop": {"soft_start": 0.05},
@@ -398,13 +387,13 @@ def test_plugin_device_through_a_scene(models, hrt, tmp_path):
 TIP_UP, TIP_DOWN = SLAB_TOP + S.TIP_R + 0.2 * MM, SLAB_TOP + S.TIP_R - 0.4 * MM  # tip centre heights
 
 
-def _slide(models, folder: Path, trace_path: Path, trajectory: Path, prefix: str = "") -> Path:
+def _slide(session_bakes, folder: Path, trace_path: Path, trajectory: Path, prefix: str = "") -> Path:
     device = {"trajectory": trajectory}
     if prefix:
         device["trajectory_prefix"] = prefix
     return write_scene(folder, trace_path.stem, {
         "run": {"duration": 0.3, "lockstep": True},
-        "object": objects(models, "tip", (0.0, 0.0, TIP_UP)),
+        "object": objects(session_bakes, "tip", (0.0, 0.0, TIP_UP)),
         "force": {"resolution": RES},
         "device": device,
         "loop": {"soft_start": 0.05},
@@ -417,13 +406,13 @@ def _fields(path: Path):
     return lines[0].split(","), [line.split(",") for line in lines[1:]]
 
 
-def test_lockstep_is_reproducible_and_a_trace_replays(models, hrt, tmp_path):
+def test_lockstep_is_reproducible_and_a_trace_replays(session_bakes, hrt, tmp_path):
     # From 0.2 mm above the slab to 0.4 mm into it in 0.1 s, then 10 mm along x.
     traj = S.write_trajectory(tmp_path / "slide.csv", [0.0, 0.1, 0.3],
                               [(0, 0, TIP_UP), (0, 0, TIP_DOWN), (10 * MM, 0, TIP_DOWN)], [(0, 0, 0, 1)] * 3)
     one, two, replay = tmp_path / "one.csv", tmp_path / "two.csv", tmp_path / "replay.csv"
     for path in (one, two):
-        res = hrt_run(hrt, _slide(models, tmp_path, path, traj), "--quiet")
+        res = hrt_run(hrt, _slide(session_bakes, tmp_path, path, traj), "--quiet")
         assert res.returncode == 0, res.stderr
     # Byte for byte, except the six per-stage wall-clock timings (docs/trace-format.md:
     # "wall-clock time of ..., never used as physics"), which no two runs share.
@@ -439,7 +428,7 @@ def test_lockstep_is_reproducible_and_a_trace_replays(models, hrt, tmp_path):
     assert np.max(np.abs(tr["fz"])) > 0.05
 
     # Replay: the first trace's device poses are the trajectory (its t column the time).
-    res = hrt_run(hrt, _slide(models, tmp_path, replay, one, prefix="device_"), "--quiet")
+    res = hrt_run(hrt, _slide(session_bakes, tmp_path, replay, one, prefix="device_"), "--quiet")
     assert res.returncode == 0, res.stderr
     rp = T.read_trace(replay)
     assert len(rp) == len(tr)
@@ -461,14 +450,14 @@ def test_lockstep_is_reproducible_and_a_trace_replays(models, hrt, tmp_path):
 # ----------------------------------------------------------------------------
 
 
-def test_ctrl_c_ramps_to_zero_and_writes_the_trace(models, hrt, tmp_path):
+def test_ctrl_c_ramps_to_zero_and_writes_the_trace(session_bakes, hrt, tmp_path):
     # The block pressed into the slab by a still device 0.2 mm in: the coupling (2000 N/m)
     # and the contact (1000 N/m) in series hold it 0.133 mm deep, a steady 0.133 N.
     z = SLAB_TOP + S.BLOCK[2] / 2
     trace_path, log_path = tmp_path / "int-trace.csv", tmp_path / "int-device.csv"
     scene = write_scene(tmp_path, "interrupt", {
         "run": {"duration": 30.0},
-        "object": objects(models, "block", (0.0, 0.0, z - 0.1 * MM)),
+        "object": objects(session_bakes, "block", (0.0, 0.0, z - 0.1 * MM)),
         "force": {"resolution": RES},
         "device": {"trajectory": still(tmp_path / "still.csv", (0.0, 0.0, z - 0.2 * MM))},
         "loop": {"soft_start": 0.1, "watchdog_ramp": 0.01},
@@ -526,12 +515,12 @@ def test_ctrl_c_ramps_to_zero_and_writes_the_trace(models, hrt, tmp_path):
 # ----------------------------------------------------------------------------
 
 
-def _base(models, tmp_path, **device):
+def _base(session_bakes, tmp_path, **device):
     z = SLAB_TOP + S.TIP_R + 1 * MM
     dev = device or {"trajectory": still(tmp_path / "still.csv", (0.0, 0.0, z))}
     return {
         "run": {"duration": 0.05},
-        "object": objects(models, "tip", (0.0, 0.0, z)),
+        "object": objects(session_bakes, "tip", (0.0, 0.0, z)),
         "force": {"resolution": RES},
         "device": dev,
         "trace": {"path": tmp_path / "out" / "trace.csv"},
@@ -554,24 +543,24 @@ def _assert_no_output(tables):
         assert list(p.parent.iterdir()) == []
 
 
-def test_scene_errors_exit_4_with_one_line_naming_file_key_and_line(models, hrt, tmp_path):
+def test_scene_errors_exit_4_with_one_line_naming_file_key_and_line(session_bakes, hrt, tmp_path):
     (tmp_path / "out").mkdir()
     # Unknown key (a typo).
-    t = _base(models, tmp_path)
+    t = _base(session_bakes, tmp_path)
     t["force"]["stifness"] = 1000.0
     scene = write_scene(tmp_path, "typo", t)
     _assert_failed(hrt_run(hrt, scene), 4, scene, "force.stifness", "unknown key", '"stiffness"',
                    f"(line {line_of(scene, 'stifness')})")
     _assert_no_output(t)
     # Missing bundle.
-    t = _base(models, tmp_path)
+    t = _base(session_bakes, tmp_path)
     t["object"][1]["bundle"] = tmp_path / "nowhere.hbundle"
     scene = write_scene(tmp_path, "nobundle", t)
     _assert_failed(hrt_run(hrt, scene), 4, scene, "object[1].bundle", "nowhere.hbundle",
                    f"(line {line_of(scene, 'bundle = ' + json.dumps(str(tmp_path / 'nowhere.hbundle')))})")
     _assert_no_output(t)
     # A quaternion of norm 2 (w, x, y, z or no rotation).
-    t = _base(models, tmp_path)
+    t = _base(session_bakes, tmp_path)
     t["object"][0]["orientation"] = [0.0, 0.0, 0.0, 2.0]
     scene = write_scene(tmp_path, "quat", t)
     _assert_failed(hrt_run(hrt, scene), 4, scene, "object[0].orientation", "norm 2",
@@ -581,25 +570,25 @@ def test_scene_errors_exit_4_with_one_line_naming_file_key_and_line(models, hrt,
     # message names the trajectory file and its line.
     traj = tmp_path / "back.csv"
     traj.write_text("t,x,y,z,qx,qy,qz,qw\n0,0,0,0.006,0,0,0,1\n0.5,0,0,0.006,0,0,0,1\n0.5,0,0,0.006,0,0,0,1\n")
-    t = _base(models, tmp_path, trajectory=traj)
+    t = _base(session_bakes, tmp_path, trajectory=traj)
     scene = write_scene(tmp_path, "back", t)
     _assert_failed(hrt_run(hrt, scene), 4, traj, "line 4", "not after")
     _assert_no_output(t)
     # The trace's folder does not exist: checked when the scene is read (scene-format.md).
-    t = _base(models, tmp_path)
+    t = _base(session_bakes, tmp_path)
     t["trace"]["path"] = tmp_path / "missing" / "trace.csv"
     scene = write_scene(tmp_path, "nofolder", t)
     _assert_failed(hrt_run(hrt, scene), 4, scene, "trace.path", "does not exist")
     assert not (tmp_path / "missing").exists()
 
 
-def test_device_and_output_errors(models, hrt, tmp_path):
+def test_device_and_output_errors(session_bakes, hrt, tmp_path):
     (tmp_path / "out").mkdir()
     # A UDP port in use (hrt sets no SO_REUSEADDR): exit 5 naming the address and port.
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
         busy.bind(("127.0.0.1", 0))
         port = busy.getsockname()[1]
-        t = _base(models, tmp_path, type="udp", port=port)
+        t = _base(session_bakes, tmp_path, type="udp", port=port)
         scene = write_scene(tmp_path, "busy", t)
         _assert_failed(hrt_run(hrt, scene, "--realtime"), 5, f"127.0.0.1:{port}")
         _assert_no_output(t)
@@ -607,14 +596,14 @@ def test_device_and_output_errors(models, hrt, tmp_path):
         _assert_failed(hrt_run(hrt, scene, "--lockstep"), 2, "--lockstep", "scripted")
         _assert_no_output(t)
     # A --duration that is not a positive number: a usage error (2), nothing run.
-    t = _base(models, tmp_path)
+    t = _base(session_bakes, tmp_path)
     scene = write_scene(tmp_path, "duration", t)
     for bad in ("-3", "0", "soon"):
         _assert_failed(hrt_run(hrt, scene, "--duration", bad), 2, "--duration")
         _assert_no_output(t)
     # A trace that cannot be written although its folder exists (/proc takes no new
     # files, even for root, for whom permission bits would not stop anything): exit 6.
-    t = _base(models, tmp_path)
+    t = _base(session_bakes, tmp_path)
     t["trace"]["path"] = Path("/proc") / f"hrt-itest-{os.getpid()}.csv"
     scene = write_scene(tmp_path, "unwritable", t)
     _assert_failed(hrt_run(hrt, scene), 6, t["trace"]["path"])
@@ -626,7 +615,7 @@ def test_device_and_output_errors(models, hrt, tmp_path):
 # ----------------------------------------------------------------------------
 
 
-def _tilted_press(models, hrt, tmp_path, dof):
+def _tilted_press(session_bakes, hrt, tmp_path, dof):
     # The block turned 0.05 rad about y, its low edge 0.3 mm into the slab, held there by a
     # still device: the contact at one edge, 6 mm from the centre of mass, has a torque
     # about it (~6 mm x 0.3 N ~ 2e-3 N m) that the coupling's angular spring answers.
@@ -636,7 +625,7 @@ def _tilted_press(models, hrt, tmp_path, dof):
     trace_path = tmp_path / f"dof{dof}.csv"
     scene = write_scene(tmp_path, f"dof{dof}", {
         "run": {"duration": 0.25, "lockstep": True},
-        "object": objects(models, "block", (0.0, 0.0, z), q),
+        "object": objects(session_bakes, "block", (0.0, 0.0, z), q),
         "force": {"resolution": RES},
         "device": {"trajectory": still(tmp_path / "tilted.csv", (0.0, 0.0, z), q), "dof_actuated": dof},
         "loop": {"soft_start": 0.05},
@@ -653,8 +642,8 @@ def _tilted_press(models, hrt, tmp_path, dof):
 TORQUE_FLOOR = 1e-5
 
 
-def test_three_dof_device_gets_the_force_only(models, hrt, tmp_path):
-    six, three = _tilted_press(models, hrt, tmp_path, 6), _tilted_press(models, hrt, tmp_path, 3)
+def test_three_dof_device_gets_the_force_only(session_bakes, hrt, tmp_path):
+    six, three = _tilted_press(session_bakes, hrt, tmp_path, 6), _tilted_press(session_bakes, hrt, tmp_path, 3)
     t6, t3 = six.wrench()[:, 3:], three.wrench()[:, 3:]
     print(f"max |torque| written: 6-DoF {np.abs(t6).max():.3e} N m, 3-DoF {np.abs(t3).max():.3e} N m; "
           f"max |contact torque| {np.abs(three.wrench('contact')[:, 3:]).max():.3e} N m")
@@ -684,14 +673,14 @@ SOFT = 0.2   # s, [loop] soft_start
 SOFT_ALLOW = 0.04
 
 
-def test_soft_start_ramps_the_force_in_linearly(models, hrt, tmp_path):
+def test_soft_start_ramps_the_force_in_linearly(session_bakes, hrt, tmp_path):
     # Target 0.3 mm into the slab; the block starts at the series equilibrium of the
     # coupling (2000 N/m) and the contact (1000 N/m): 0.2 mm in, F = 0.2 N from t = 0.
     z = SLAB_TOP + S.BLOCK[2] / 2
     trace_path = tmp_path / "soft.csv"
     scene = write_scene(tmp_path, "soft", {
         "run": {"duration": 0.4, "lockstep": True},
-        "object": objects(models, "block", (0.0, 0.0, z - 0.2 * MM)),
+        "object": objects(session_bakes, "block", (0.0, 0.0, z - 0.2 * MM)),
         "force": {"resolution": RES},
         "device": {"trajectory": still(tmp_path / "press.csv", (0.0, 0.0, z - 0.3 * MM))},
         "loop": {"soft_start": SOFT},
@@ -721,7 +710,7 @@ def test_soft_start_ramps_the_force_in_linearly(models, hrt, tmp_path):
 # ----------------------------------------------------------------------------
 
 
-def test_gl_backend_session_equals_cpu(models, hrt, tmp_path):
+def test_gl_backend_session_equals_cpu(session_bakes, hrt, tmp_path):
     # The slide above with --backend gl (the compute reduction): the GL backend computes
     # every delta of the CPU's to the last bit (tests/test_gl_backend.py,
     # runtime/tests/test_gl_depth.cpp), so the lockstep trace, which feeds each frame's
@@ -729,9 +718,9 @@ def test_gl_backend_session_equals_cpu(models, hrt, tmp_path):
     traj = S.write_trajectory(tmp_path / "slide.csv", [0.0, 0.1, 0.3],
                               [(0, 0, TIP_UP), (0, 0, TIP_DOWN), (10 * MM, 0, TIP_DOWN)], [(0, 0, 0, 1)] * 3)
     cpu, gl = tmp_path / "cpu.csv", tmp_path / "gl.csv"
-    res = hrt_run(hrt, _slide(models, tmp_path, cpu, traj), "--quiet", "--backend", "cpu")
+    res = hrt_run(hrt, _slide(session_bakes, tmp_path, cpu, traj), "--quiet", "--backend", "cpu")
     assert res.returncode == 0, res.stderr
-    res = hrt_run(hrt, _slide(models, tmp_path, gl, traj), "--backend", "gl", "--json", timeout=600)
+    res = hrt_run(hrt, _slide(session_bakes, tmp_path, gl, traj), "--backend", "gl", "--json", timeout=600)
     assert res.returncode == 0, res.stderr
     summary = json.loads(res.stdout)
     assert summary["backend"]["name"] == "gl", summary["backend"]

@@ -23,7 +23,6 @@ Fixed in advance:
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -40,13 +39,7 @@ START = -0.07              # m along the slope from the slab's centre: a slide s
 STICK_TOL = 5e-6
 
 
-@pytest.fixture(scope="module")
-def models(tmp_path_factory):
-    root = Path(tmp_path_factory.getbasetemp() / "sessions")
-    return {n: S.bake(n, root) for n in ("block", "slab")}
-
-
-def tilt_run(models, tmp_path, tan_alpha):
+def tilt_run(session_bakes, tmp_path, tan_alpha):
     alpha = math.atan(tan_alpha)
     m = DENSITY * float(np.prod(S.BLOCK))
     d0 = m * G * math.cos(alpha) / K             # equilibrium depth
@@ -56,8 +49,8 @@ def tilt_run(models, tmp_path, tan_alpha):
     still = S.write_trajectory(tmp_path / "still.csv", [0.0, 1.0], [block, block], [q, q])
     tables = {
         "run": {"duration": DURATION, "lockstep": True},
-        "object": [{"name": "block", "bundle": models["block"].bundle, "position": list(block), "orientation": q},
-                   {"name": "slab", "bundle": models["slab"].bundle, "orientation": q}],
+        "object": [{"name": "block", "bundle": session_bakes["block"].bundle, "position": list(block), "orientation": q},
+                   {"name": "slab", "bundle": session_bakes["slab"].bundle, "orientation": q}],
         "force": {"stiffness": K},
         "probe": {"density": DENSITY, "gravity": [0.0, 0.0, -G]},
         "coupling": {"enabled": False},
@@ -72,8 +65,8 @@ def tilt_run(models, tmp_path, tan_alpha):
 
 
 @pytest.mark.parametrize("tan_alpha", [0.30, MU_S - 0.03])
-def test_block_sticks_below_the_static_coefficient(models, tmp_path, tan_alpha):
-    t, along, tr, _ = tilt_run(models, tmp_path, tan_alpha)
+def test_block_sticks_below_the_static_coefficient(session_bakes, tmp_path, tan_alpha):
+    t, along, tr, _ = tilt_run(session_bakes, tmp_path, tan_alpha)
     print(f"tan {tan_alpha}: moved {np.ptp(along) * 1e6:.3f} um along the slope; "
           f"slipping frames {int(np.sum(tr['slipping'] > 0))} of {len(t)}")
     assert np.ptp(along) <= STICK_TOL
@@ -81,8 +74,8 @@ def test_block_sticks_below_the_static_coefficient(models, tmp_path, tan_alpha):
 
 
 @pytest.mark.parametrize("tan_alpha", [MU_S + 0.03, 0.70])
-def test_block_slides_at_the_dynamic_acceleration(models, tmp_path, tan_alpha):
-    t, along, tr, alpha = tilt_run(models, tmp_path, tan_alpha)
+def test_block_slides_at_the_dynamic_acceleration(session_bakes, tmp_path, tan_alpha):
+    t, along, tr, alpha = tilt_run(session_bakes, tmp_path, tan_alpha)
     w = t >= SKIP
     A = np.stack([np.ones(w.sum()), t[w], 0.5 * t[w] ** 2], 1)
     a_fit = np.linalg.lstsq(A, along[w], rcond=None)[0][2]

@@ -712,7 +712,6 @@ def test_lookups_stay_in_their_chart(stages):
 
 def test_pieces_convex_outward_and_map_complete(stages):
     s, (m, c, p, a, d), _ = stages
-    from hbake.decompose import hull_planes
 
     diag = float(np.linalg.norm(c.vertices.max(0) - c.vertices.min(0)))
     tol = C.CONVEX_TOLERANCE_REL * diag + C.CONVEX_TOLERANCE_ABS
@@ -824,7 +823,7 @@ def test_pipeline_bake_is_byte_deterministic(tmp_path, small_model):
 
     s = BakeSettings().with_overrides(SMALL)
     r1 = bake(small_model, tmp_path / "a.hbundle", s)
-    r2 = bake(small_model, tmp_path / "b.hbundle", s)
+    bake(small_model, tmp_path / "b.hbundle", s)
     for name in ("manifest.json", "coarse.ply", "atlas.exr", "pieces.ply"):
         b1 = (tmp_path / "a.hbundle" / name).read_bytes()
         b2 = (tmp_path / "b.hbundle" / name).read_bytes()

@@ -51,11 +51,6 @@ def _hrt() -> str:
     return hrt_binary("the differential test of hbake validate against hrt check needs it")
 
 
-@pytest.fixture(scope="module")
-def hrt() -> str:
-    return _hrt()
-
-
 def _run_hrt(hrt: str, *args) -> subprocess.CompletedProcess:
     return subprocess.run([hrt, *map(str, args)], capture_output=True, text=True, timeout=120)
 

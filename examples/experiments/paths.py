@@ -72,7 +72,8 @@ def translation():
     # Pressed 0.3 mm below the nested contact level, so the block stays in contact in
     # the nested position too.
     z = 20 * MM + GEAR_R - 0.3 * MM
-    c = lambda x, y, zz: (x + BLOCK_C[0], y - BLOCK_C[1], zz - BLOCK_C[2])
+    def c(x, y, zz):
+        return (x + BLOCK_C[0], y - BLOCK_C[1], zz - BLOCK_C[2])
     keys = [(0.0, c(x0, y0, z)), (0.2, c(x0, y0, z)), (1.2, c(x0 + 8 * MM, y0, z)),
             (2.4, c(x0 + 8 * MM, y0 + 2.5 * L, z)), (2.7, c(x0 + 8 * MM, y0 + 2.5 * L, z + 1.5 * MM)),
             (3.0, c(x0 + 8 * MM, y0 + 2.5 * L, z))]
