@@ -53,11 +53,11 @@ struct BenchOptions {
   std::string a, b;
   std::vector<double> pose_a;
   std::vector<double> pose_b{0, 0, 0, 0, 0, 0, 1};
-  std::vector<double> settle;            // direction (3) or empty
-  double settle_depth = 5e-5;            // m
-  std::vector<double> path{0, 0, 0};     // total translation of A along the sweep, m
-  int frames = 500;                      // poses along the path (one frame each)
-  int passes = 3;                        // back-and-forth passes; the first is a warm-up
+  std::vector<double> settle;         // direction (3) or empty
+  double settle_depth = 5e-5;         // m
+  std::vector<double> path{0, 0, 0};  // total translation of A along the sweep, m
+  int frames = 500;                   // poses along the path (one frame each)
+  int passes = 3;                     // back-and-forth passes; the first is a warm-up
   std::vector<int> resolutions{32, 50, 64, 128};
   std::vector<int> copies{1, 2, 4, 7, 8, 12, 16};
   // The lists as given (comma-separated, possibly over several arguments);
@@ -166,8 +166,14 @@ std::vector<FrameRecord> sweep(const hrt::Scene& scene, const std::vector<hrt::P
       st.poses[0] = translated(base[0], s * path);
       frame_or_usage(scene, st);
       if (pass == 0 && passes > 1) continue;
-      FrameRecord r{st.timings.collision_us, st.timings.clustering_us, st.timings.force_us, st.timings.total_us,
-                    st.num_pairs, st.num_patches, false, {}};
+      FrameRecord r{st.timings.collision_us,
+                    st.timings.clustering_us,
+                    st.timings.force_us,
+                    st.timings.total_us,
+                    st.num_pairs,
+                    st.num_patches,
+                    false,
+                    {}};
       // frame() calls the backend only for a frame with patches: otherwise
       // its stats are still the previous frame's.
       if (backend && st.num_patches > 0) {
@@ -345,7 +351,8 @@ void run_bench(BenchOptions o) {
   if (!(hrt::Vec3(o.path[0], o.path[1], o.path[2]).stableNorm() <= kMaxPosition))
     throw Exit(kUsage, "--path: its length must be at most " + fmt_g(kMaxPosition) + " m");
   if (!(o.settle_depth > 0 && o.settle_depth <= kMaxSettleDepth))
-    throw Exit(kUsage, "--settle-depth: must be in (0, " + fmt_g(kMaxSettleDepth) + "] m, got " + fmt_g(o.settle_depth));
+    throw Exit(kUsage,
+               "--settle-depth: must be in (0, " + fmt_g(kMaxSettleDepth) + "] m, got " + fmt_g(o.settle_depth));
   hrt::Pose pose_a = parse_pose(o.pose_a, "--pose-a");
   const hrt::Pose pose_b = parse_pose(o.pose_b, "--pose-b");
   const hrt::Vec3 path(o.path[0], o.path[1], o.path[2]);
@@ -399,8 +406,9 @@ void run_bench(BenchOptions o) {
                 threads_used == 1 ? "" : "s", "compiler " __VERSION__,
                 backend.gl ? ("; depth backend " + backend.describe() + ", profiled").c_str() : "");
     std::printf("pose A     --pose-a %s   (B: --pose-b %s)\n", pose_args(pose_a).c_str(), pose_args(pose_b).c_str());
-    std::printf("path       A moves by (%.4g, %.4g, %.4g) m over %d frames, back and forth, %d passes (first = warm-up)\n\n",
-                path.x(), path.y(), path.z(), o.frames, o.passes);
+    std::printf(
+        "path       A moves by (%.4g, %.4g, %.4g) m over %d frames, back and forth, %d passes (first = warm-up)\n\n",
+        path.x(), path.y(), path.z(), o.frames, o.passes);
   }
 
   // 1. The scraping path, per N.
@@ -437,7 +445,8 @@ void run_bench(BenchOptions o) {
                   s.clustering, s.force, s.total, s.per_pair, s.per_patch, 1e3 / s.total,
                   w.refused_patches || w.clamped_patches
                       ? ("   (" + std::to_string(w.refused_patches) + " refused, " + std::to_string(w.clamped_patches) +
-                         " clamped patch-frames)").c_str()
+                         " clamped patch-frames)")
+                            .c_str()
                       : "");
     }
   }
@@ -484,8 +493,8 @@ void run_bench(BenchOptions o) {
   // 3. K copies of B spread along the path.
   nlohmann::json jcopies = nlohmann::json::array();
   if (!o.json) {
-    std::printf("\nK copies of B along the path: median total (texture force) per frame, us\n%4s %7s %8s", "K",
-                "pairs", "patches");
+    std::printf("\nK copies of B along the path: median total (texture force) per frame, us\n%4s %7s %8s", "K", "pairs",
+                "patches");
     for (int n : o.resolutions) std::printf("  %18s", ("N = " + std::to_string(n)).c_str());
     std::printf("\n");
   }
@@ -555,7 +564,8 @@ void run_bench(BenchOptions o) {
   }
   if (o.json) {
     const std::string bad = first_non_finite(js);
-    if (!bad.empty()) throw Exit(kInternal, "internal error: non-finite value at '" + bad + "' of the result (please report)");
+    if (!bad.empty())
+      throw Exit(kInternal, "internal error: non-finite value at '" + bad + "' of the result (please report)");
     std::printf("%s\n", js.dump(2, ' ', false, nlohmann::json::error_handler_t::replace).c_str());
   }
 }
@@ -565,8 +575,9 @@ void run_bench(BenchOptions o) {
 void register_bench(CLI::App& app) {
   auto o = std::make_shared<BenchOptions>();
   o->scene.max_patches = 128;  // the K-copies scenes hold many patches
-  CLI::App* cmd = app.add_subcommand("bench", "Time haptic frames (collision, clustering, texture force) of a probe "
-                                              "scraping an object, per grid resolution and patch count");
+  CLI::App* cmd = app.add_subcommand("bench",
+                                     "Time haptic frames (collision, clustering, texture force) of a probe "
+                                     "scraping an object, per grid resolution and patch count");
   cmd->add_option("--a", o->a, "probe bundle A (e.g. a rasp)");
   cmd->add_option("--b", o->b, "object bundle B (e.g. a CAD part)");
   cmd->add_option("--pose-a", o->pose_a, "start pose of A: x y z qx qy qz qw")->expected(7)->check(RealNumber());

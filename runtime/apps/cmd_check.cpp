@@ -18,9 +18,9 @@ namespace hrt_cli {
 namespace {
 
 struct CheckOptions {
-  std::string bundle;            // bundle directory
-  bool json = false;             // machine-readable output (layout documented in docs/guides/runtime.md)
-  bool verify_hashes = true;     // SHA-256 and size of every file against the manifest
+  std::string bundle;         // bundle directory
+  bool json = false;          // machine-readable output (layout documented in docs/guides/runtime.md)
+  bool verify_hashes = true;  // SHA-256 and size of every file against the manifest
 };
 
 nlohmann::json summary_json(const hrt::Model& m) {
@@ -43,7 +43,8 @@ nlohmann::json summary_json(const hrt::Model& m) {
       {"format_version", m.format_version},
       {"source", m.name},
       {"coarse", {{"vertices", m.vertices.size()}, {"triangles", m.faces.size()}, {"area", area}}},
-      {"pieces", {{"count", m.pieces.size()}, {"vertices", piece_vertices}, {"faces", piece_faces}, {"map_entries", mapped}}},
+      {"pieces",
+       {{"count", m.pieces.size()}, {"vertices", piece_vertices}, {"faces", piece_faces}, {"map_entries", mapped}}},
       {"atlas",
        {{"width", m.atlas.width},
         {"height", m.atlas.height},
@@ -75,13 +76,15 @@ void print_text(const hrt::Model& m, const nlohmann::json& s) {
   std::printf("bundle      %s (format %s, source %s)\n", m.path.c_str(), m.format_version.c_str(), m.name.c_str());
   std::printf("coarse      %zu vertices, %zu triangles, area %.6g m^2\n", m.vertices.size(), m.faces.size(),
               s["coarse"]["area"].get<double>());
-  std::printf("pieces      %zu convex pieces (%zu vertices, %zu faces, %zu piece-triangle map entries)\n", m.pieces.size(),
-              s["pieces"]["vertices"].get<size_t>(), s["pieces"]["faces"].get<size_t>(), s["pieces"]["map_entries"].get<size_t>());
+  std::printf("pieces      %zu convex pieces (%zu vertices, %zu faces, %zu piece-triangle map entries)\n",
+              m.pieces.size(), s["pieces"]["vertices"].get<size_t>(), s["pieces"]["faces"].get<size_t>(),
+              s["pieces"]["map_entries"].get<size_t>());
   std::printf("atlas       %d x %d texels (%s), coverage %.4f, texel %.4g m\n", m.atlas.width, m.atlas.height,
               s["atlas"]["compression"].get<std::string>().c_str(), s["atlas"]["coverage"].get<double>(), q.texel_size);
-  std::printf("mass        basis %s, volume %.6g m^3, mass %.6g kg at density %g kg/m^3, centre of mass (%.6g, %.6g, %.6g) m\n",
-              mass.basis.c_str(), mass.volume, mass.density * mass.volume, mass.density, mass.center_of_mass.x(),
-              mass.center_of_mass.y(), mass.center_of_mass.z());
+  std::printf(
+      "mass        basis %s, volume %.6g m^3, mass %.6g kg at density %g kg/m^3, centre of mass (%.6g, %.6g, %.6g) m\n",
+      mass.basis.c_str(), mass.volume, mass.density * mass.volume, mass.density, mass.center_of_mass.x(),
+      mass.center_of_mass.y(), mass.center_of_mass.z());
   std::printf("quality     displacement outward %.4g m, inward %.4g m, hull deviation %.4g m\n", q.displacement_outward,
               q.displacement_inward, q.hull_deviation);
   std::printf("            min wavelength %.4g m, bbox diagonal %.4g m\n", q.min_wavelength, q.bbox_diagonal);
@@ -91,7 +94,8 @@ void print_text(const hrt::Model& m, const nlohmann::json& s) {
   std::printf("surface     %llu atlas quads inside the UV triangles, %llu cut by a discontinuity",
               static_cast<unsigned long long>(sf["quads"].get<uint64_t>()), static_cast<unsigned long long>(cut));
   if (cut > 0)
-    std::printf(" (--heights mesh sees no surface between their corners, up to %.4g m apart)", sf["widest_cut"].get<double>());
+    std::printf(" (--heights mesh sees no surface between their corners, up to %.4g m apart)",
+                sf["widest_cut"].get<double>());
   std::printf("\n");
   for (const auto& w : m.manifest.at("warnings")) std::printf("warning     %s\n", w.get<std::string>().c_str());
   std::printf("ok\n");

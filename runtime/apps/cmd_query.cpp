@@ -23,11 +23,11 @@ namespace hrt_cli {
 namespace {
 
 struct QueryOptions {
-  std::vector<std::string> bundles;       // A, then one or more Bs
-  std::vector<double> pose_a;             // 7 numbers
-  std::vector<double> pose_b;             // 7 numbers per B, in order
+  std::vector<std::string> bundles;  // A, then one or more Bs
+  std::vector<double> pose_a;        // 7 numbers
+  std::vector<double> pose_b;        // 7 numbers per B, in order
   SceneFlags scene;
-  int repeat = 1;                         // frames run at the same poses; timings are their median
+  int repeat = 1;  // frames run at the same poses; timings are their median
   bool json = false;
 };
 
@@ -93,70 +93,74 @@ Json query_json(const hrt::Scene& scene, const hrt::State& st, const QueryOption
   json contacts = json::array();
   for (int k = 0; k < st.num_patches; ++k) {
     const hrt::ContactPatch& c = st.patches[static_cast<size_t>(k)];
-    contacts.push_back({{"id", st.patch_ids[static_cast<size_t>(k)]},
-                        {"object_b", c.object_b},
-                        {"piece_pairs", c.piece_pairs},
-                        {"p_a", j3(c.p_a)},
-                        {"p_b", j3(c.p_b)},
-                        {"n", j3(c.n)},
-                        {"u", j3(c.u)},
-                        {"v", j3(c.v)},
-                        {"window", {{"origin", j3(c.window.origin)}, {"cell", c.window.cell}, {"resolution", c.window.resolution}}},
-                        {"tris_a", c.tris_a},
-                        {"tris_b", c.tris_b},
-                        {"covered", c.covered},
-                        {"delta", c.delta},
-                        {"grad", {c.grad[0] + 0.0, c.grad[1] + 0.0, c.grad[2] + 0.0, c.grad[3] + 0.0, c.grad[4] + 0.0, c.grad[5] + 0.0}},
-                        {"force", j3(c.force)},
-                        {"torque", j3(c.torque)},
-                        {"delta_bound", c.delta_bound},
-                        {"delta_force", c.delta_force},
-                        {"clamped", c.clamped},
-                        {"refused", c.refused},
-                        {"facing", c.facing}});
+    contacts.push_back(
+        {{"id", st.patch_ids[static_cast<size_t>(k)]},
+         {"object_b", c.object_b},
+         {"piece_pairs", c.piece_pairs},
+         {"p_a", j3(c.p_a)},
+         {"p_b", j3(c.p_b)},
+         {"n", j3(c.n)},
+         {"u", j3(c.u)},
+         {"v", j3(c.v)},
+         {"window", {{"origin", j3(c.window.origin)}, {"cell", c.window.cell}, {"resolution", c.window.resolution}}},
+         {"tris_a", c.tris_a},
+         {"tris_b", c.tris_b},
+         {"covered", c.covered},
+         {"delta", c.delta},
+         {"grad",
+          {c.grad[0] + 0.0, c.grad[1] + 0.0, c.grad[2] + 0.0, c.grad[3] + 0.0, c.grad[4] + 0.0, c.grad[5] + 0.0}},
+         {"force", j3(c.force)},
+         {"torque", j3(c.torque)},
+         {"delta_bound", c.delta_bound},
+         {"delta_force", c.delta_force},
+         {"clamped", c.clamped},
+         {"refused", c.refused},
+         {"facing", c.facing}});
   }
   json wrench_b = json::array();
   for (int b = 1; b < scene.size(); ++b)
     wrench_b.push_back({{"object", b},
                         {"force", j3(st.wrench_b[static_cast<size_t>(b)].head<3>())},
                         {"torque", j3(st.wrench_b[static_cast<size_t>(b)].tail<3>())}});
-  Json doc = {{"version", 1},
-          {"units", {{"length", "m"}, {"force", "N"}, {"torque", "N m"}, {"stiffness", "N/m"}, {"angle", "rad"}, {"time", "us"}}},
-          {"objects", objects},
-          {"options",
-           {{"resolution", so.force.resolution},
-            {"stiffness", so.force.stiffness},
-            {"lin_step", so.force.lin_step},
-            {"ang_step", so.force.ang_step},
-            {"shortcut", so.force.shortcut},
-            {"heights", hrt::to_string(so.force.heights)},
-            {"margin", so.collision.margin},
-            {"max_patches", so.cluster.max_patches},
-            {"auto_resolution", so.cluster.auto_resolution},
-            {"max_resolution", so.cluster.max_resolution},
-            {"backend", backend.name()},
-            {"threads", backend.gl ? 1 : hrt::resolve_threads(so.threads)}}},
-          {"pairs", st.num_pairs},
-          {"contacts", contacts},
-          {"force", j3(st.force)},
-          {"torque", j3(st.torque)},
-          {"wrench_b", wrench_b},
-          {"timings_us",
-           {{"collision", t.collision_us},
-            {"clustering", t.clustering_us},
-            {"force", t.force_us},
-            {"total", t.total_us},
-            {"frames", o.repeat}}},
-          {"warnings",
-           {{"fallback_normals", w.fallback_normals},
-            {"fcl_failures", w.fcl_failures},
-            {"pairs_grown", w.pairs_grown},
-            {"patches_dropped", w.patches_dropped},
-            {"empty_windows", w.empty_windows},
-            {"undersampled_patches", w.depth.undersampled_patches},
-            {"uncovered_configurations", w.depth.uncovered_configurations},
-            {"refused_patches", w.refused_patches},
-            {"clamped_patches", w.clamped_patches}}}};
+  Json doc = {
+      {"version", 1},
+      {"units",
+       {{"length", "m"}, {"force", "N"}, {"torque", "N m"}, {"stiffness", "N/m"}, {"angle", "rad"}, {"time", "us"}}},
+      {"objects", objects},
+      {"options",
+       {{"resolution", so.force.resolution},
+        {"stiffness", so.force.stiffness},
+        {"lin_step", so.force.lin_step},
+        {"ang_step", so.force.ang_step},
+        {"shortcut", so.force.shortcut},
+        {"heights", hrt::to_string(so.force.heights)},
+        {"margin", so.collision.margin},
+        {"max_patches", so.cluster.max_patches},
+        {"auto_resolution", so.cluster.auto_resolution},
+        {"max_resolution", so.cluster.max_resolution},
+        {"backend", backend.name()},
+        {"threads", backend.gl ? 1 : hrt::resolve_threads(so.threads)}}},
+      {"pairs", st.num_pairs},
+      {"contacts", contacts},
+      {"force", j3(st.force)},
+      {"torque", j3(st.torque)},
+      {"wrench_b", wrench_b},
+      {"timings_us",
+       {{"collision", t.collision_us},
+        {"clustering", t.clustering_us},
+        {"force", t.force_us},
+        {"total", t.total_us},
+        {"frames", o.repeat}}},
+      {"warnings",
+       {{"fallback_normals", w.fallback_normals},
+        {"fcl_failures", w.fcl_failures},
+        {"pairs_grown", w.pairs_grown},
+        {"patches_dropped", w.patches_dropped},
+        {"empty_windows", w.empty_windows},
+        {"undersampled_patches", w.depth.undersampled_patches},
+        {"uncovered_configurations", w.depth.uncovered_configurations},
+        {"refused_patches", w.refused_patches},
+        {"clamped_patches", w.clamped_patches}}}};
   if (backend.gl) {
     doc["gl"] = gl_json(backend);
     // Per contact, the occlusion search's depth quantum (delta is within it
@@ -176,10 +180,11 @@ void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptio
   for (int b = 1; b < scene.size(); ++b)
     std::printf("object %-4d %s (%s), tolerance %.4g mm\n", b, scene.model(b).path.c_str(), scene.model(b).name.c_str(),
                 scene.tolerance(b) * 1e3);
-  std::printf("model       k = %g N/m, N = %d%s, steps %s, %s\n", so.force.stiffness, so.force.resolution,
-              so.cluster.auto_resolution ? (" (auto, up to " + std::to_string(so.cluster.max_resolution) + ")").c_str() : "",
-              so.force.lin_step > 0 || so.force.ang_step > 0 ? "explicit" : "one texel",
-              so.force.shortcut ? "shortcut (Sec. 5.2)" : "full re-rasterization");
+  std::printf(
+      "model       k = %g N/m, N = %d%s, steps %s, %s\n", so.force.stiffness, so.force.resolution,
+      so.cluster.auto_resolution ? (" (auto, up to " + std::to_string(so.cluster.max_resolution) + ")").c_str() : "",
+      so.force.lin_step > 0 || so.force.ang_step > 0 ? "explicit" : "one texel",
+      so.force.shortcut ? "shortcut (Sec. 5.2)" : "full re-rasterization");
   std::printf("backend     %s\n", backend.describe().c_str());
   std::printf("contacts    %d piece pairs -> %d patches\n\n", st.num_pairs, st.num_patches);
   if (st.num_patches > 0) {
@@ -216,10 +221,11 @@ void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptio
   if (backend.gl && st.num_patches > 0) {
     // Unprofiled (see gl_json): the total and the read-back only.
     const hrt::gl::GlDepthStats& g = backend.gl->stats();
-    std::printf("gl (us)           total %.1f, read-back %.1f; %d batch(es), %d round trip(s), %d tile(s), %d occlusion "
-                "quer%s, %lld mesh quad(s) (last frame)\n",
-                g.total_us, g.readback_us, g.batches, g.round_trips, g.tiles, g.occlusion_queries,
-                g.occlusion_queries == 1 ? "y" : "ies", static_cast<long long>(g.mesh_quads));
+    std::printf(
+        "gl (us)           total %.1f, read-back %.1f; %d batch(es), %d round trip(s), %d tile(s), %d occlusion "
+        "quer%s, %lld mesh quad(s) (last frame)\n",
+        g.total_us, g.readback_us, g.batches, g.round_trips, g.tiles, g.occlusion_queries,
+        g.occlusion_queries == 1 ? "y" : "ies", static_cast<long long>(g.mesh_quads));
   }
   const uint64_t any = w.fallback_normals + w.fcl_failures + w.pairs_grown + w.patches_dropped + w.empty_windows +
                        w.depth.undersampled_patches + w.depth.uncovered_configurations + w.refused_patches +
@@ -230,7 +236,8 @@ void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptio
       std::printf(" %llu patch(es) refused (n disagrees with the pieces: no force);",
                   static_cast<unsigned long long>(w.refused_patches));
     if (w.clamped_patches)
-      std::printf(" %llu patch(es) clamped to the pieces' depth bound;", static_cast<unsigned long long>(w.clamped_patches));
+      std::printf(" %llu patch(es) clamped to the pieces' depth bound;",
+                  static_cast<unsigned long long>(w.clamped_patches));
     if (w.depth.undersampled_patches)
       std::printf(" %llu patch(es) with a grid texel coarser than half the shortest relief wavelength (Sec. 7.2);",
                   static_cast<unsigned long long>(w.depth.undersampled_patches));
@@ -240,9 +247,11 @@ void print_table(const hrt::Scene& scene, const hrt::State& st, const QueryOptio
     if (w.patches_dropped)
       std::printf(" %llu patch(es) dropped beyond --max-patches;", static_cast<unsigned long long>(w.patches_dropped));
     if (w.empty_windows)
-      std::printf(" %llu patch(es) whose triangles do not overlap along n;", static_cast<unsigned long long>(w.empty_windows));
+      std::printf(" %llu patch(es) whose triangles do not overlap along n;",
+                  static_cast<unsigned long long>(w.empty_windows));
     if (w.fallback_normals)
-      std::printf(" %llu touching piece pair(s) (normal from face planes);", static_cast<unsigned long long>(w.fallback_normals));
+      std::printf(" %llu touching piece pair(s) (normal from face planes);",
+                  static_cast<unsigned long long>(w.fallback_normals));
     if (w.fcl_failures)
       std::printf(" %llu piece pair(s) FCL failed on (skipped);", static_cast<unsigned long long>(w.fcl_failures));
     if (w.pairs_grown) std::printf(" pair buffer grown %llu time(s);", static_cast<unsigned long long>(w.pairs_grown));
@@ -320,7 +329,8 @@ void register_query(CLI::App& app) {
     // bug upstream (nlohmann-json would print it as null), never a result.
     const Json doc = query_json(*scene, st, *o, backend, t, warnings);
     const std::string bad = first_non_finite(doc);
-    if (!bad.empty()) throw Exit(kInternal, "internal error: non-finite value at '" + bad + "' of the result (please report)");
+    if (!bad.empty())
+      throw Exit(kInternal, "internal error: non-finite value at '" + bad + "' of the result (please report)");
     if (o->json) {
       std::printf("%s\n", doc.dump(2, ' ', false, Json::error_handler_t::replace).c_str());
     } else {

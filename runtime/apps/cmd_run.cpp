@@ -119,8 +119,9 @@ int run(const RunFlags& f) {
     // The file checks this pair for its own backend (force.shortcut); an
     // override needs the same check.
     if (cfg.backend == "gl" && cfg.scene.force.shortcut)
-      throw Exit(kUsage, "--backend gl: " + cfg.file +
-                             " sets [force] shortcut = true, which only the CPU backend implements; see hrt run --help");
+      throw Exit(kUsage,
+                 "--backend gl: " + cfg.file +
+                     " sets [force] shortcut = true, which only the CPU backend implements; see hrt run --help");
   }
   if (f.threads >= 0) cfg.scene.threads = f.threads;
   hrt::BackendChoice backend_choice = hrt::BackendChoice::cpu;
@@ -221,8 +222,8 @@ int run(const RunFlags& f) {
     runner->run(record, &g_stop);
   } catch (const std::invalid_argument& e) {
     if (!backend.gl) throw;  // the CPU code inline never throws it: a bug
-    step_error = "error: " + backend_source + ": the " + backend.name() +
-                 " backend refused the scene's options: " + e.what();
+    step_error =
+        "error: " + backend_source + ": the " + backend.name() + " backend refused the scene's options: " + e.what();
     step_error_code = backend_from_file ? kScene : kUsage;
   } catch (const hrt::gl::GlError& e) {
     step_error = "error: " + backend_source + ": " + e.what();
@@ -266,7 +267,8 @@ int run(const RunFlags& f) {
     std::_Exit(interrupted ? kInterrupted : kDevice);
   }
   if (trace.truncated())
-    std::fprintf(stderr, "hrt: warning: %s: the trace stopped at %llu rows, %llu bytes: [trace] max_bytes (%llu); "
+    std::fprintf(stderr,
+                 "hrt: warning: %s: the trace stopped at %llu rows, %llu bytes: [trace] max_bytes (%llu); "
                  "the session ran on\n",
                  cfg.trace.path.c_str(), static_cast<unsigned long long>(trace.rows()),
                  static_cast<unsigned long long>(trace.bytes()), static_cast<unsigned long long>(cfg.trace.max_bytes));
@@ -323,9 +325,9 @@ int run(const RunFlags& f) {
                    {"deep_fallback_patches", state.warnings.deep_fallback_patches}};
   if (auto* udp = dynamic_cast<hrt::UdpDevice*>(raw)) {
     const hrt::UdpCounters c = udp->counters();
-    j["udp"] = {{"port", udp->bound_port()}, {"received", c.received}, {"accepted", c.accepted},
-                {"bad_size", c.bad_size}, {"bad_magic", c.bad_magic}, {"bad_version", c.bad_version},
-                {"bad_type", c.bad_type}, {"non_finite", c.non_finite}, {"out_of_order", c.out_of_order},
+    j["udp"] = {{"port", udp->bound_port()},        {"received", c.received},        {"accepted", c.accepted},
+                {"bad_size", c.bad_size},           {"bad_magic", c.bad_magic},      {"bad_version", c.bad_version},
+                {"bad_type", c.bad_type},           {"non_finite", c.non_finite},    {"out_of_order", c.out_of_order},
                 {"sent_wrenches", c.sent_wrenches}, {"sent_display", c.sent_display}};
   }
   nlohmann::json jb = {{"choice", cfg.backend},
@@ -345,8 +347,13 @@ int run(const RunFlags& f) {
     jb["total_us_p99"] = percentile(gl_total_us, 0.99);
     jb["buffer_growths"] = gs.buffer_growths;
     // Of the last frame with patches (frame() calls the backend only then).
-    jb["last_frame"] = {{"total_us", gs.total_us}, {"readback_us", gs.readback_us}, {"batches", gs.batches},
-                        {"round_trips", gs.round_trips}, {"tiles", gs.tiles}, {"mesh_quads", gs.mesh_quads}, {"occlusion_queries", gs.occlusion_queries}};
+    jb["last_frame"] = {{"total_us", gs.total_us},
+                        {"readback_us", gs.readback_us},
+                        {"batches", gs.batches},
+                        {"round_trips", gs.round_trips},
+                        {"tiles", gs.tiles},
+                        {"mesh_quads", gs.mesh_quads},
+                        {"occlusion_queries", gs.occlusion_queries}};
   }
   j["backend"] = jb;
   j["trace"] = cfg.trace.path;
@@ -361,36 +368,42 @@ int run(const RunFlags& f) {
     std::printf("hrt run %s: %s, %llu frames in %.3f s of session time (%s, %.3f s wall)\n", cfg.file.c_str(),
                 cfg.lockstep ? "lockstep" : "real time", static_cast<unsigned long long>(frames),
                 j["duration_s"].get<double>(), info.name.c_str(), wall_s);
-    std::printf("  simulation: %.0f Hz%s; frame compute median %.1f us, p99 %.1f us (%.0f Hz if alone); up to %llu patches\n",
-                j["simulation"]["rate_hz"].get<double>(), cfg.lockstep ? "" : " achieved", median(frame_us), percentile(frame_us, 0.99),
-                j["simulation"]["compute_rate_hz"].get<double>(), static_cast<unsigned long long>(max_patches));
+    std::printf(
+        "  simulation: %.0f Hz%s; frame compute median %.1f us, p99 %.1f us (%.0f Hz if alone); up to %llu patches\n",
+        j["simulation"]["rate_hz"].get<double>(), cfg.lockstep ? "" : " achieved", median(frame_us),
+        percentile(frame_us, 0.99), j["simulation"]["compute_rate_hz"].get<double>(),
+        static_cast<unsigned long long>(max_patches));
     if (cfg.lockstep)
       std::printf("  device loop: %llu ticks at %.0f Hz (lockstep), multirate %s",
                   static_cast<unsigned long long>(st.ticks), 1.0 / cfg.loop.period, cfg.loop.multirate ? "on" : "off");
     else
-      std::printf("  device loop: %llu ticks in %.3f s: %.0f Hz achieved of %.0f Hz, %llu missed deadlines, multirate %s",
-                  static_cast<unsigned long long>(st.ticks), wall_s, achieved_tick_hz, 1.0 / cfg.loop.period,
-                  static_cast<unsigned long long>(st.missed_deadlines), cfg.loop.multirate ? "on" : "off");
+      std::printf(
+          "  device loop: %llu ticks in %.3f s: %.0f Hz achieved of %.0f Hz, %llu missed deadlines, multirate %s",
+          static_cast<unsigned long long>(st.ticks), wall_s, achieved_tick_hz, 1.0 / cfg.loop.period,
+          static_cast<unsigned long long>(st.missed_deadlines), cfg.loop.multirate ? "on" : "off");
     if (!cfg.lockstep)
       std::printf("; period error p50 %.1f us, p99 %.1f us, max %.1f us (SCHED_FIFO %s)",
                   dl["jitter_us"]["p50"].get<double>(), dl["jitter_us"]["p99"].get<double>(),
                   dl["jitter_us"]["max"].get<double>(), st.realtime ? "on" : "off");
-    std::printf("\n  safety: %llu force clamps, %llu torque clamps, %llu rate-limited, %llu non-finite dropped, "
-                "%llu watchdog events, %llu refused patches, %llu deep fallbacks\n",
-                static_cast<unsigned long long>(st.force_clamps), static_cast<unsigned long long>(st.torque_clamps),
-                static_cast<unsigned long long>(st.rate_limited), static_cast<unsigned long long>(st.non_finite),
-                static_cast<unsigned long long>(st.watchdog_events),
-                static_cast<unsigned long long>(state.warnings.refused_patches),
-                static_cast<unsigned long long>(state.warnings.deep_fallbacks));
+    std::printf(
+        "\n  safety: %llu force clamps, %llu torque clamps, %llu rate-limited, %llu non-finite dropped, "
+        "%llu watchdog events, %llu refused patches, %llu deep fallbacks\n",
+        static_cast<unsigned long long>(st.force_clamps), static_cast<unsigned long long>(st.torque_clamps),
+        static_cast<unsigned long long>(st.rate_limited), static_cast<unsigned long long>(st.non_finite),
+        static_cast<unsigned long long>(st.watchdog_events),
+        static_cast<unsigned long long>(state.warnings.refused_patches),
+        static_cast<unsigned long long>(state.warnings.deep_fallbacks));
     // What the two counters mean, once, where they are not zero (a new user reads
     // "refused" as an error; it is the safety rule working).
     if (state.warnings.refused_patches > 0)
-      std::printf("    refused: patch-frames whose normal or depth the convex pieces contradict (an edge-on or "
-                  "wrong-way normal, heights that are not this contact's); they gave no force, by design "
-                  "(docs/hrt-query-json.md, `refused`)\n");
+      std::printf(
+          "    refused: patch-frames whose normal or depth the convex pieces contradict (an edge-on or "
+          "wrong-way normal, heights that are not this contact's); they gave no force, by design "
+          "(docs/hrt-query-json.md, `refused`)\n");
     if (state.warnings.deep_fallbacks > 0)
-      std::printf("    deep fallbacks: frames where the probe was deeper than a patch's force can be trusted; a "
-                  "penalty along the pieces' penetration pushed it out instead\n");
+      std::printf(
+          "    deep fallbacks: frames where the probe was deeper than a patch's force can be trusted; a "
+          "penalty along the pieces' penetration pushed it out instead\n");
     if (backend.gl)
       std::printf("  depth backend: %s; GL total median %.1f us, p99 %.1f us over %zu frames with patches\n",
                   backend.describe().c_str(), median(gl_total_us), percentile(gl_total_us, 0.99), gl_total_us.size());
@@ -438,7 +451,8 @@ void register_run(CLI::App& app) {
   sub->add_flag("--json", f->json, "Print the summary as JSON");
   sub->add_flag("--quiet", f->quiet, "Print nothing on success");
   sub->callback([f]() {
-    if (f->lockstep && f->realtime) throw Exit(kUsage, "--lockstep and --realtime exclude each other; see hrt run --help");
+    if (f->lockstep && f->realtime)
+      throw Exit(kUsage, "--lockstep and --realtime exclude each other; see hrt run --help");
     const int rc = run(*f);
     if (rc != kOk) throw Exit(rc, "");
   });

@@ -28,7 +28,8 @@ std::string first_non_finite(const Json& doc) {
       if (!std::isfinite(v->template get<double>())) return path;
     } else if (v->is_array()) {
       // Pushed in reverse, so the first element is visited first.
-      for (size_t i = v->size(); i-- > 0;) stack.emplace_back(&(*v)[i], path.empty() ? std::to_string(i) : path + "/" + std::to_string(i));
+      for (size_t i = v->size(); i-- > 0;)
+        stack.emplace_back(&(*v)[i], path.empty() ? std::to_string(i) : path + "/" + std::to_string(i));
     } else if (v->is_object()) {
       std::vector<std::pair<const Json*, std::string>> members;
       for (auto it = v->begin(); it != v->end(); ++it)

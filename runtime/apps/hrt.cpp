@@ -62,7 +62,8 @@ int main(int argc, char** argv) {
   } catch (const hrt::BundleError& e) {
     // "hrt: error: <class>: <bundle>/<file>: <problem>" from every command
     // (the class as `hbake validate` names it), one printable line.
-    std::fprintf(stderr, "hrt: error: %s: %s\n", hrt::to_string(e.error_class()), hrt::printable(e.what(), 600).c_str());
+    std::fprintf(stderr, "hrt: error: %s: %s\n", hrt::to_string(e.error_class()),
+                 hrt::printable(e.what(), 600).c_str());
     return hrt_cli::kBundle;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "hrt: internal error: %s\n", e.what());

@@ -34,7 +34,8 @@ inline std::string real_number_error(const std::string& s) {
   const double x = std::strtod(s.c_str(), &end);
   if (end != s.c_str() + s.size()) return "'" + s + "' is not a number";
   // ERANGE on underflow (1e-400 -> 0) is harmless; overflow is refused.
-  if ((errno == ERANGE && std::fabs(x) >= 1.0) || !std::isfinite(x)) return "'" + s + "' is out of the range of a double";
+  if ((errno == ERANGE && std::fabs(x) >= 1.0) || !std::isfinite(x))
+    return "'" + s + "' is out of the range of a double";
   return "";
 }
 inline std::string integer_error(const std::string& s) {
@@ -102,7 +103,9 @@ struct SceneFlags {
                     "(both backends)")
         ->check(CLI::IsMember({"surface", "coarse", "mesh"}))
         ->capture_default_str();
-    cmd->add_option("--max-patches", max_patches, "most contact patches per frame")->check(Integer())->capture_default_str();
+    cmd->add_option("--max-patches", max_patches, "most contact patches per frame")
+        ->check(Integer())
+        ->capture_default_str();
     cmd->add_flag("--auto-resolution", auto_resolution,
                   "per patch, raise N (up to --max-resolution) until the grid texel is <= 1/4 of the bundles' "
                   "min_wavelength");
@@ -214,8 +217,8 @@ struct CliBackend {
 // thread: call this on the thread that runs the frames.
 inline CliBackend select_depth_backend(hrt::BackendChoice choice, const std::string& source,
                                        const hrt::gl::GlDepthOptions& gl_options,
-                                       const std::vector<const hrt::Model*>& models,
-                                       const hrt::SceneOptions& options, bool announce) {
+                                       const std::vector<const hrt::Model*>& models, const hrt::SceneOptions& options,
+                                       bool announce) {
   CliBackend out;
   out.choice = choice;
   // gl with options only the CPU implements is refused earlier, by the
@@ -287,13 +290,15 @@ inline hrt::Pose parse_pose(const std::vector<double>& v, const std::string& fla
     if (!std::isfinite(x)) throw Exit(kUsage, flag + ": every number must be finite");
   const hrt::Vec3 position(v[0], v[1], v[2]);
   if (!(position.stableNorm() <= kMaxPosition))
-    throw Exit(kUsage, flag + ": the position (" + fmt_g(v[0]) + ", " + fmt_g(v[1]) + ", " + fmt_g(v[2]) + ") is " + fmt_g(position.stableNorm()) +
-                           " m from the origin; |position| must be at most " + fmt_g(kMaxPosition) + " m");
+    throw Exit(kUsage, flag + ": the position (" + fmt_g(v[0]) + ", " + fmt_g(v[1]) + ", " + fmt_g(v[2]) + ") is " +
+                           fmt_g(position.stableNorm()) + " m from the origin; |position| must be at most " +
+                           fmt_g(kMaxPosition) + " m");
   Eigen::Quaterniond q(v[6], v[3], v[4], v[5]);  // Eigen's constructor takes w first
-  const double norm = q.coeffs().stableNorm();  // no overflow to inf for 1e308
+  const double norm = q.coeffs().stableNorm();   // no overflow to inf for 1e308
   if (!(std::abs(norm - 1.0) <= kQuaternionTolerance))
     throw Exit(kUsage, flag + ": the quaternion (qx qy qz qw) has norm " + fmt_g(norm) +
-                           ", expected a unit quaternion (x, y, z, w order; norm within " + fmt_g(kQuaternionTolerance) + " of 1)");
+                           ", expected a unit quaternion (x, y, z, w order; norm within " +
+                           fmt_g(kQuaternionTolerance) + " of 1)");
   hrt::Pose p;
   p.position = position;
   p.rotation = q.normalized();

@@ -115,7 +115,7 @@ void remove_tree(const std::string& dir) {
       const std::string name = e->d_name;
       if (name == "." || name == "..") continue;
       const std::string p = dir + "/" + name;
-      struct stat st {};
+      struct stat st{};
       if (::lstat(p.c_str(), &st) == 0 && S_ISDIR(st.st_mode)) {
         remove_tree(p);
       } else {
@@ -168,9 +168,12 @@ size_t json_depth(const std::string& s) {
   bool in_str = false, esc = false;
   for (char c : s) {
     if (in_str) {
-      if (esc) esc = false;
-      else if (c == '\\') esc = true;
-      else if (c == '"') in_str = false;
+      if (esc)
+        esc = false;
+      else if (c == '\\')
+        esc = true;
+      else if (c == '"')
+        in_str = false;
     } else if (c == '"') {
       in_str = true;
     } else if (c == '[' || c == '{') {
@@ -281,8 +284,8 @@ void run_frames(const hrt::Model& a, const hrt::Model& b, uint32_t flags, const 
     if (f > 0) st.poses[0].position += 0.01 * ra * (d.norm() > 0 ? hrt::Vec3(d.normalized()) : hrt::Vec3::UnitX());
     hrt::frame(*scene, st);
     if (g_verbose)
-      std::fprintf(stderr, "hrt_fuzz_bundle: frame %d: %d pairs, %d patches, |F| %.6g N, |T| %.6g N m\n", f, st.num_pairs,
-                   st.num_patches, st.force.norm(), st.torque.norm());
+      std::fprintf(stderr, "hrt_fuzz_bundle: frame %d: %d pairs, %d patches, |F| %.6g N, |T| %.6g N m\n", f,
+                   st.num_pairs, st.num_patches, st.force.norm(), st.torque.norm());
     if (g_strict && !(st.force.allFinite() && st.torque.allFinite()))
       finding("frame", "non-finite net force or torque on A");
   }
@@ -347,9 +350,11 @@ int one_input(const uint8_t* data, size_t size) {
   }
   check_model(model, lo.check_invariants);
   if (g_verbose)
-    std::fprintf(stderr, "hrt_fuzz_bundle: loaded (hashes %s, invariants %s): %zu vertices, %zu faces, %zu pieces, atlas %dx%d\n",
-                 verify ? "on" : "off", lo.check_invariants ? "on" : "off", model.vertices.size(), model.faces.size(),
-                 model.pieces.size(), model.atlas.width, model.atlas.height);
+    std::fprintf(
+        stderr,
+        "hrt_fuzz_bundle: loaded (hashes %s, invariants %s): %zu vertices, %zu faces, %zu pieces, atlas %dx%d\n",
+        verify ? "on" : "off", lo.check_invariants ? "on" : "off", model.vertices.size(), model.faces.size(),
+        model.pieces.size(), model.atlas.width, model.atlas.height);
   if (!lo.check_invariants) return 0;  // values unchecked: not fit for a Scene
   const hrt::Model& b = (flags & kFlagGoldenB) && g_golden ? *g_golden : model;
   run_frames(model, b, flags, pose);
@@ -361,10 +366,14 @@ int one_input(const uint8_t* data, size_t size) {
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
   const char* env = std::getenv("HRT_FUZZ_TMPDIR");
   std::string parent;
-  if (writable_dir(env)) parent = env;
-  else if (writable_dir("/dev/shm")) parent = "/dev/shm";
-  else if (writable_dir(std::getenv("TMPDIR"))) parent = std::getenv("TMPDIR");
-  else parent = "/tmp";
+  if (writable_dir(env))
+    parent = env;
+  else if (writable_dir("/dev/shm"))
+    parent = "/dev/shm";
+  else if (writable_dir(std::getenv("TMPDIR")))
+    parent = std::getenv("TMPDIR");
+  else
+    parent = "/tmp";
   remove_stale(parent);
   g_root = parent + "/hrt_fuzz_" + std::to_string(::getpid());
   remove_tree(g_root);

@@ -120,7 +120,7 @@ void remove_tree(const std::string& dir) {
       const std::string name = e->d_name;
       if (name == "." || name == "..") continue;
       const std::string p = dir + "/" + name;
-      struct stat st {};
+      struct stat st{};
       if (::lstat(p.c_str(), &st) == 0 && S_ISDIR(st.st_mode)) {
         remove_tree(p);
       } else {
@@ -143,7 +143,7 @@ void empty_folder(const std::string& dir) {
       const std::string name = e->d_name;
       if (name == "." || name == ".." || name == ".lock") continue;
       const std::string p = dir + "/" + name;
-      struct stat st {};
+      struct stat st{};
       if (::lstat(p.c_str(), &st) == 0 && S_ISDIR(st.st_mode)) {
         remove_tree(p);
       } else {
@@ -196,12 +196,12 @@ void write_text(const std::string& path, const char* text) {
 }
 
 bool is_dir(const std::string& p) {
-  struct stat st {};
+  struct stat st{};
   return ::stat(p.c_str(), &st) == 0 && S_ISDIR(st.st_mode);
 }
 
 bool is_regular(const std::string& p) {
-  struct stat st {};
+  struct stat st{};
   return ::stat(p.c_str(), &st) == 0 && S_ISREG(st.st_mode);
 }
 
@@ -378,8 +378,8 @@ void check_trajectory(const hrt::Trajectory& t) {
   auto probe = [&](double x) {
     const hrt::Pose p = t.sample(x);
     const hrt::Vec6 v = t.velocity(x);
-    if (g_strict && !(p.position.allFinite() && p.rotation.coeffs().allFinite() &&
-                      std::abs(p.rotation.norm() - 1.0) <= 1e-6))
+    if (g_strict &&
+        !(p.position.allFinite() && p.rotation.coeffs().allFinite() && std::abs(p.rotation.norm() - 1.0) <= 1e-6))
       fail("sample(" + std::to_string(x) + ") not a finite pose with a unit quaternion");
     if (g_strict && !v.allFinite()) fail("velocity(" + std::to_string(x) + ") not finite");
   };
@@ -389,8 +389,12 @@ void check_trajectory(const hrt::Trajectory& t) {
     probe(times[i]);
     if (i + 1 < n) probe(times[i] + 0.5 * (times[i + 1] - times[i]));
   }
-  const double odd[] = {times.front() - 1.0, times.back() + 1.0, std::nan(""), -std::numeric_limits<double>::infinity(),
-                        std::numeric_limits<double>::infinity(), 0.5 * (times.front() + times.back())};
+  const double odd[] = {times.front() - 1.0,
+                        times.back() + 1.0,
+                        std::nan(""),
+                        -std::numeric_limits<double>::infinity(),
+                        std::numeric_limits<double>::infinity(),
+                        0.5 * (times.front() + times.back())};
   for (double x : odd) probe(x);
   if (g_verbose)
     std::fprintf(stderr, "hrt_fuzz_scene: trajectory loaded: %zu samples, %.17g .. %.17g s\n", n, times.front(),
@@ -448,13 +452,16 @@ bool env_on(const char* name, bool def) {
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
   const char* env = std::getenv("HRT_FUZZ_TMPDIR");
   std::string parent;
-  if (writable_dir(env)) parent = env;
-  else if (writable_dir("/dev/shm")) parent = "/dev/shm";
-  else if (writable_dir(std::getenv("TMPDIR"))) parent = std::getenv("TMPDIR");
-  else parent = "/tmp";
+  if (writable_dir(env))
+    parent = env;
+  else if (writable_dir("/dev/shm"))
+    parent = "/dev/shm";
+  else if (writable_dir(std::getenv("TMPDIR")))
+    parent = std::getenv("TMPDIR");
+  else
+    parent = "/tmp";
   g_root = claim_folder(parent);
-  if (::mkdir((g_root + "/a.hbundle").c_str(), 0700) != 0 ||
-      ::mkdir((g_root + "/b.hbundle").c_str(), 0700) != 0) {
+  if (::mkdir((g_root + "/a.hbundle").c_str(), 0700) != 0 || ::mkdir((g_root + "/b.hbundle").c_str(), 0700) != 0) {
     std::fprintf(stderr, "hrt_fuzz_scene: cannot create %s: %s\n", g_root.c_str(), std::strerror(errno));
     std::exit(1);
   }

@@ -110,7 +110,8 @@ void check_objects(const uint8_t* data, size_t size) {
   if (r == udp::Result::ok && m.count <= 4 && rs != udp::Result::ok) fail("small array refused a small packet");
   if (r != udp::Result::ok) return;
   if (m.count > udp::kMaxObjectsPerPacket) fail("object count above the maximum accepted");
-  if (size != udp::kObjectPosesHeaderSize + udp::kObjectPoseSize * m.count) fail("object poses accepted at a wrong size");
+  if (size != udp::kObjectPosesHeaderSize + udp::kObjectPoseSize * m.count)
+    fail("object poses accepted at a wrong size");
   for (uint32_t k = 0; k < m.count; ++k) {
     const udp::ObjectPose& o = g_objects[k];
     if (o.index >= m.total) fail("object index not below total accepted");
@@ -121,7 +122,8 @@ void check_objects(const uint8_t* data, size_t size) {
   if (udp::encode_object_poses(m, g_objects, g_out, sizeof g_out, n) != udp::Result::ok)
     fail("accepted object poses do not encode");
   std::vector<uint8_t> expect = normalized_header(data, size);
-  for (uint32_t k = 0; k < m.count; ++k) std::memset(&expect[udp::kObjectPosesHeaderSize + udp::kObjectPoseSize * k + 4], 0, 4);
+  for (uint32_t k = 0; k < m.count; ++k)
+    std::memset(&expect[udp::kObjectPosesHeaderSize + udp::kObjectPoseSize * k + 4], 0, 4);
   check_same(g_out, n, expect);
 }
 

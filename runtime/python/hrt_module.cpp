@@ -72,9 +72,9 @@ struct PyScene {
 void set_poses(PyScene& s, nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> poses) {
   const size_t n = s.models.size();
   if (poses.shape(0) != n || poses.shape(1) != 7)
-    throw std::invalid_argument("poses must be an array of shape (" + std::to_string(n) + ", 7) (x y z qx qy qz qw per " +
-                                "object), got (" + std::to_string(poses.shape(0)) + ", " +
-                                std::to_string(poses.shape(1)) + ")");
+    throw std::invalid_argument("poses must be an array of shape (" + std::to_string(n) +
+                                ", 7) (x y z qx qy qz qw per " + "object), got (" + std::to_string(poses.shape(0)) +
+                                ", " + std::to_string(poses.shape(1)) + ")");
   const double* p = poses.data();
   for (size_t i = 0; i < n; ++i, p += 7) {
     for (int k = 0; k < 7; ++k)
@@ -270,232 +270,272 @@ NB_MODULE(_hrt, m) {
       .def_ro("path", &hrt::Model::path, "The bundle directory as given.")
       .def_ro("name", &hrt::Model::name, "The source mesh's file name (manifest).")
       .def_ro("format_version", &hrt::Model::format_version, "The bundle's format version, \"1.x\".")
-      .def_prop_ro("num_faces", [](const hrt::Model& x) { return x.faces.size(); }, "Triangles of the coarse mesh.")
-      .def_prop_ro("num_pieces", [](const hrt::Model& x) { return x.pieces.size(); }, "Convex pieces.")
-      .def_prop_ro("vertices", [](const hrt::Model& x) {
+      .def_prop_ro(
+          "num_faces", [](const hrt::Model& x) { return x.faces.size(); }, "Triangles of the coarse mesh.")
+      .def_prop_ro(
+          "num_pieces", [](const hrt::Model& x) { return x.pieces.size(); }, "Convex pieces.")
+      .def_prop_ro(
+          "vertices",
+          [](const hrt::Model& x) {
             return nb::cast(array(x.vertices.empty() ? nullptr : x.vertices[0].data(), {x.vertices.size(), 3}));
-          }, "Coarse mesh vertices, (V, 3) float64, metres, object frame (a copy).")
-      .def_prop_ro("volume", [](const hrt::Model& x) { return x.mass.volume; }, "Volume, m^3.")
-      .def_prop_ro("center_of_mass", [](const hrt::Model& x) { return nb::cast(vec3(x.mass.center_of_mass)); },
-                   "Centre of mass, object frame, metres.")
+          },
+          "Coarse mesh vertices, (V, 3) float64, metres, object frame (a copy).")
+      .def_prop_ro(
+          "volume", [](const hrt::Model& x) { return x.mass.volume; }, "Volume, m^3.")
+      .def_prop_ro(
+          "center_of_mass", [](const hrt::Model& x) { return nb::cast(vec3(x.mass.center_of_mass)); },
+          "Centre of mass, object frame, metres.")
       .def("__repr__", [](const hrt::Model& x) {
         return "<hrt.Model '" + x.path + "' (" + x.name + ", format " + x.format_version + ", " +
                std::to_string(x.faces.size()) + " faces, " + std::to_string(x.pieces.size()) + " pieces)>";
       });
 
-  m.def("load_bundle", [](const std::string& path, bool verify_hashes) {
+  m.def(
+      "load_bundle",
+      [](const std::string& path, bool verify_hashes) {
         hrt::LoadOptions lo;
         lo.verify_hashes = verify_hashes;
         return std::make_shared<hrt::Model>(hrt::load_bundle(path, lo));
-      }, "path"_a, "verify_hashes"_a = true,
+      },
+      "path"_a, "verify_hashes"_a = true,
       "Loads and checks a haptic bundle (.hbundle directory). Raises hrt.BundleError (a ValueError, with\n"
       "error_class 'io', 'version', 'schema', 'hash', 'mesh', 'atlas' or 'pieces') on bad input.");
 
   nb::class_<PyScene>(m, "Scene",
                       "A scene (the probe A first, then the objects B) and its preallocated frame state.\n"
                       "One query at a time per Scene (it owns the frame's scratch).")
-      .def("__init__", [](PyScene* self, std::vector<std::shared_ptr<hrt::Model>> models, int resolution,
-                          double stiffness, double lin_step, double ang_step, bool shortcut, const std::string& heights,
-                          double margin, int max_patches, int threads, const std::string& backend,
-                          const std::string& gl_search) {
-             // Everything is built first: an exception leaves *self unconstructed.
-             for (const auto& p : models)
-               if (!p) throw std::invalid_argument("a scene object is None");
-             hrt::SceneOptions o;
-             o.force.resolution = resolution;
-             o.force.stiffness = stiffness;
-             o.force.lin_step = lin_step;
-             o.force.ang_step = ang_step;
-             o.force.shortcut = shortcut;
-             o.force.heights = height_mode(heights);
-             o.collision.margin = margin;
-             o.cluster.max_patches = max_patches;
-             o.threads = threads;
-             std::vector<const hrt::Model*> objects;
-             for (const auto& p : models) objects.push_back(p.get());
-             hrt::BackendChoice choice;
-             if (!hrt::parse_backend_choice(backend, choice))
-               throw std::invalid_argument("backend must be 'cpu', 'gl' or 'auto', got '" + backend + "'");
-             hrt::gl::GlDepthOptions gl;
-             if (gl_search == "occlusion") gl.search = hrt::gl::MaxSearch::occlusion;
-             else if (gl_search != "compute")
-               throw std::invalid_argument("gl_search must be 'compute' or 'occlusion', got '" + gl_search + "'");
-             auto scene = std::make_unique<hrt::Scene>(objects, o);
-             hrt::gl::BackendSelection selection = hrt::gl::select_backend(choice, objects, o, gl);
-             hrt::DepthBackend* chosen = dynamic_cast<hrt::gl::GlDepthBackend*>(selection.backend.get());
-             auto state = std::make_unique<hrt::State>(*scene);
-             state->depth_backend = chosen;
-             new (self) PyScene{std::move(models), std::move(scene), std::move(selection), chosen, std::move(state)};
-           },
-           "models"_a, "resolution"_a = hrt::kDefaultResolution, "stiffness"_a = hrt::kDefaultStiffness,
-           "lin_step"_a = 0.0, "ang_step"_a = 0.0, "shortcut"_a = false, "heights"_a = "surface",
-           "margin"_a = -1.0, "max_patches"_a = 32, "threads"_a = 1, "backend"_a = "cpu",
-           "gl_search"_a = "compute",
-           "models: [probe A, B, ...] from load_bundle (the same Model may appear twice). The options are\n"
-           "`hrt query`'s: grid resolution N, stiffness k (N/m), finite-difference steps (0: automatic),\n"
-           "the Sec. 5.2 shortcut, heights 'surface'|'coarse'|'mesh', collision margin (m, -1: automatic),\n"
-           "most patches per frame, threads (0: every hardware thread), the depth backend 'cpu', 'gl'\n"
-           "(headless OpenGL through EGL; hrt.GlError when none can be made) or 'auto', and the GL\n"
-           "backend's maximum search 'compute' or 'occlusion'. Raises ValueError on bad options.")
-      .def("query", [](PyScene& s, nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> poses) {
-             set_poses(s, poses);
-             {
-               nb::gil_scoped_release release;
-               s.make_current();
-               hrt::frame(*s.scene, *s.state);
-             }
-             return result(s);
-           }, "poses"_a,
-           "One frame at the given poses ((objects, 7) float64: x y z qx qy qz qw per object, world\n"
-           "frame). Returns a dict: force and torque on the probe (world, torque about its centre of\n"
-           "mass), wrench_b (objects, 6), pairs, patches (arrays per patch: id, object_b, delta,\n"
-           "delta_bound, n, grad, force, torque, p_a, p_b, covered, refused, clamped) and timings_us.\n"
-           "Successive queries are successive frames of one session: patches keep their identity\n"
-           "(id, u, texel size) from one query to the next, as in `hrt run`. A query after reset(),\n"
-           "or the first, equals `hrt query --json` at the same poses, bit for bit.")
-      .def("reset", [](PyScene& s) {
-             s.state = std::make_unique<hrt::State>(*s.scene);
-             s.state->depth_backend = s.backend;
-           },
-           "Forgets the previous frames (a fresh State): the next query is like a first one.")
-      .def_prop_ro("size", [](const PyScene& s) { return s.models.size(); }, "Objects in the scene.")
-      .def_prop_ro("backend", [](const PyScene& s) { return std::string(s.backend ? s.backend->name() : "cpu"); },
-                   "The depth backend the queries run on: 'cpu' or 'gl'.")
-      .def_prop_ro("backend_message", [](const PyScene& s) { return s.selection.message; },
-                   "Which backend was chosen and why (one line, as `hrt query --backend` prints it).")
-      .def("tolerance", [](const PyScene& s, int b) {
-             if (b < 1 || b >= static_cast<int>(s.models.size())) throw nb::index_error("object index out of range");
-             return s.scene->tolerance(b);
-           }, "b"_a, "The pair tolerance of object b >= 1 against the probe (m).");
+      .def(
+          "__init__",
+          [](PyScene* self, std::vector<std::shared_ptr<hrt::Model>> models, int resolution, double stiffness,
+             double lin_step, double ang_step, bool shortcut, const std::string& heights, double margin,
+             int max_patches, int threads, const std::string& backend, const std::string& gl_search) {
+            // Everything is built first: an exception leaves *self unconstructed.
+            for (const auto& p : models)
+              if (!p) throw std::invalid_argument("a scene object is None");
+            hrt::SceneOptions o;
+            o.force.resolution = resolution;
+            o.force.stiffness = stiffness;
+            o.force.lin_step = lin_step;
+            o.force.ang_step = ang_step;
+            o.force.shortcut = shortcut;
+            o.force.heights = height_mode(heights);
+            o.collision.margin = margin;
+            o.cluster.max_patches = max_patches;
+            o.threads = threads;
+            std::vector<const hrt::Model*> objects;
+            for (const auto& p : models) objects.push_back(p.get());
+            hrt::BackendChoice choice;
+            if (!hrt::parse_backend_choice(backend, choice))
+              throw std::invalid_argument("backend must be 'cpu', 'gl' or 'auto', got '" + backend + "'");
+            hrt::gl::GlDepthOptions gl;
+            if (gl_search == "occlusion")
+              gl.search = hrt::gl::MaxSearch::occlusion;
+            else if (gl_search != "compute")
+              throw std::invalid_argument("gl_search must be 'compute' or 'occlusion', got '" + gl_search + "'");
+            auto scene = std::make_unique<hrt::Scene>(objects, o);
+            hrt::gl::BackendSelection selection = hrt::gl::select_backend(choice, objects, o, gl);
+            hrt::DepthBackend* chosen = dynamic_cast<hrt::gl::GlDepthBackend*>(selection.backend.get());
+            auto state = std::make_unique<hrt::State>(*scene);
+            state->depth_backend = chosen;
+            new (self) PyScene{std::move(models), std::move(scene), std::move(selection), chosen, std::move(state)};
+          },
+          "models"_a, "resolution"_a = hrt::kDefaultResolution, "stiffness"_a = hrt::kDefaultStiffness,
+          "lin_step"_a = 0.0, "ang_step"_a = 0.0, "shortcut"_a = false, "heights"_a = "surface", "margin"_a = -1.0,
+          "max_patches"_a = 32, "threads"_a = 1, "backend"_a = "cpu", "gl_search"_a = "compute",
+          "models: [probe A, B, ...] from load_bundle (the same Model may appear twice). The options are\n"
+          "`hrt query`'s: grid resolution N, stiffness k (N/m), finite-difference steps (0: automatic),\n"
+          "the Sec. 5.2 shortcut, heights 'surface'|'coarse'|'mesh', collision margin (m, -1: automatic),\n"
+          "most patches per frame, threads (0: every hardware thread), the depth backend 'cpu', 'gl'\n"
+          "(headless OpenGL through EGL; hrt.GlError when none can be made) or 'auto', and the GL\n"
+          "backend's maximum search 'compute' or 'occlusion'. Raises ValueError on bad options.")
+      .def(
+          "query",
+          [](PyScene& s, nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu> poses) {
+            set_poses(s, poses);
+            {
+              nb::gil_scoped_release release;
+              s.make_current();
+              hrt::frame(*s.scene, *s.state);
+            }
+            return result(s);
+          },
+          "poses"_a,
+          "One frame at the given poses ((objects, 7) float64: x y z qx qy qz qw per object, world\n"
+          "frame). Returns a dict: force and torque on the probe (world, torque about its centre of\n"
+          "mass), wrench_b (objects, 6), pairs, patches (arrays per patch: id, object_b, delta,\n"
+          "delta_bound, n, grad, force, torque, p_a, p_b, covered, refused, clamped) and timings_us.\n"
+          "Successive queries are successive frames of one session: patches keep their identity\n"
+          "(id, u, texel size) from one query to the next, as in `hrt run`. A query after reset(),\n"
+          "or the first, equals `hrt query --json` at the same poses, bit for bit.")
+      .def(
+          "reset",
+          [](PyScene& s) {
+            s.state = std::make_unique<hrt::State>(*s.scene);
+            s.state->depth_backend = s.backend;
+          },
+          "Forgets the previous frames (a fresh State): the next query is like a first one.")
+      .def_prop_ro(
+          "size", [](const PyScene& s) { return s.models.size(); }, "Objects in the scene.")
+      .def_prop_ro(
+          "backend", [](const PyScene& s) { return std::string(s.backend ? s.backend->name() : "cpu"); },
+          "The depth backend the queries run on: 'cpu' or 'gl'.")
+      .def_prop_ro(
+          "backend_message", [](const PyScene& s) { return s.selection.message; },
+          "Which backend was chosen and why (one line, as `hrt query --backend` prints it).")
+      .def(
+          "tolerance",
+          [](const PyScene& s, int b) {
+            if (b < 1 || b >= static_cast<int>(s.models.size())) throw nb::index_error("object index out of range");
+            return s.scene->tolerance(b);
+          },
+          "b"_a, "The pair tolerance of object b >= 1 against the probe (m).");
 
-  nb::class_<PyRunner>(m, "Runner",
-                       "A scene file's haptic session (docs/scene-format.md) in lockstep: the scripted or virtual device,\n"
-                       "the device loop and the simulation of `hrt run --lockstep`, frame by frame.")
-      .def("__init__", [](PyRunner* self, const std::string& scene, nb::object duration, const std::string& trace,
-                          const std::string& device, bool write_trace, bool keep_frames) {
-             if (device != "file" && device != "virtual")
-               throw std::invalid_argument("device must be \"file\" or \"virtual\", got \"" + device + "\"");
-             hrt::RunConfig cfg = hrt::load_run_config(scene);
-             hrt::RunOverrides o;
-             o.lockstep = true;
-             if (!duration.is_none()) o.duration = nb::cast<double>(duration);
-             o.trace = trace;
-             hrt::apply_overrides(cfg, o);
-             if (!write_trace) cfg.trace.path.clear(), cfg.trace.device_log.clear();
-             if (device == "virtual" && cfg.device.type != "virtual") {
-               // The file's device replaced by a virtual handle holding the
-               // probe's initial pose (its limits and workspace kept; a
-               // plugin's limits are its own, so the file's defaults apply).
-               cfg.device.type = "virtual";
-               cfg.device.start = cfg.loop.map.to_device(cfg.objects.at(0).pose);
-               cfg.device.start_set = false;
-             }
-             hrt::check_run_outputs(cfg);
-             if (cfg.device.type != "scripted" && cfg.device.type != "virtual")
-               throw std::invalid_argument(cfg.file + ": lockstep needs a scripted or virtual device (device.type = \"" +
-                                           cfg.device.type + "\")");
-             auto runner = std::make_unique<hrt::Runner>(cfg);
-             runner->open();
-             std::unique_ptr<hrt::TraceWriter> writer;
-             if (!runner->config().trace.path.empty()) {
-               writer = std::make_unique<hrt::TraceWriter>();
-               writer->open(runner->config().trace.path, runner->config());
-             }
-             new (self) PyRunner();
-             self->runner = std::move(runner);
-             self->trace = std::move(writer);
-             self->keep = keep_frames;
-           },
-           "scene"_a, "duration"_a = nb::none(), "trace"_a = "", "device"_a = "file", "write_trace"_a = true,
-           "keep_frames"_a = true,
-           "Loads the scene file (its bundles, trajectories and scripted or virtual device) and opens the\n"
-           "session. duration (s) and trace (a path) override the file's, as `hrt run --duration --trace`\n"
-           "do. device=\"virtual\" replaces the file's device with a virtual one (set_device_pose) that\n"
-           "starts where the probe starts, keeping the file's limits and workspace map. write_trace=False\n"
-           "writes no trace even where the file names one; keep_frames=False keeps no frames in `frames`\n"
-           "(a long interactive session).\n"
-           "Raises hrt.SceneFileError, hrt.BundleError, hrt.DeviceError or ValueError.")
-      .def("step", [](PyRunner& r) -> nb::object {
-             if (r.finished) return nb::none();
-             const hrt::SessionFrame* fr = nullptr;
-             {
-               nb::gil_scoped_release release;
-               fr = r.runner->step();
-             }
-             if (!fr) {
-               r.finish();
-               return nb::none();
-             }
-             r.record(*fr);
-             return r.frame_dict(*fr);
-           },
-           "Runs the device loop to the next simulation frame and returns it (t, frame, probe and target\n"
-           "poses (7,), contact, coupling and device wrenches (6,), patches), or None at the end.")
-      .def("set_device_pose", [](PyRunner& r, nb::ndarray<const double, nb::shape<7>, nb::c_contig, nb::device::cpu> pose,
-                                 bool clutch) {
-             hrt::VirtualDevice* dev = r.runner->virtual_device();
-             if (!dev)
-               throw std::invalid_argument("set_device_pose: the device is \"" + r.runner->config().device.type +
-                                           "\", not \"virtual\"");
-             const double* p = pose.data();
-             hrt::Pose d;
-             d.position = hrt::Vec3(p[0], p[1], p[2]);
-             d.rotation = Eigen::Quaterniond(p[6], p[3], p[4], p[5]);
-             if (!dev->set_pose(d, clutch))
-               throw std::invalid_argument("set_device_pose: the pose must be finite with a non-zero quaternion");
-           }, "pose"_a, "clutch"_a = false,
-           "A virtual device ([device] type = \"virtual\"): the handle's pose (x y z qx qy qz qw, device\n"
-           "frame) read by every device tick from the next step() on, and its clutch.")
-      .def("target_to_device", [](const PyRunner& r,
-                                  nb::ndarray<const double, nb::shape<7>, nb::c_contig, nb::device::cpu> pose) {
-             const double* p = pose.data();
-             hrt::Pose t;
-             t.position = hrt::Vec3(p[0], p[1], p[2]);
-             t.rotation = Eigen::Quaterniond(p[6], p[3], p[4], p[5]);
-             if (!t.position.allFinite() || !(t.rotation.norm() > 1e-12))
-               throw std::invalid_argument("target_to_device: the pose must be finite with a non-zero quaternion");
-             double out[7];
-             pose7(r.runner->config().loop.map.to_device(t), out);
-             return array(out, {7});
-           }, "pose"_a,
-           "The handle pose (device frame) whose coupling target is `pose` (the probe's object frame in\n"
-           "the scene): the inverse of the scene file's [workspace] map (before any clutch re-indexing).")
-      .def("run", [](PyRunner& r) {
-             {
-               nb::gil_scoped_release release;
-               while (!r.finished) {
-                 const hrt::SessionFrame* fr = r.runner->step();
-                 if (!fr) break;
-                 r.record(*fr);
-               }
-             }
-             r.finish();
-           }, "Runs the rest of the session (and closes its trace).")
-      .def_prop_ro("frames", [](const PyRunner& r) {
-             const size_t f = r.t.size();
-             nb::dict d;
-             d["t"] = array(r.t.data(), {f});
-             d["probe"] = array(r.probe.data(), {f, 7});
-             d["target"] = array(r.target.data(), {f, 7});
-             d["contact"] = array(r.contact.data(), {f, 6});
-             d["coupling"] = array(r.coupling.data(), {f, 6});
-             d["device"] = array(r.device.data(), {f, 6});
-             d["patches"] = nb::cast(r.patches);
-             return d;
-           },
-           "Every frame so far as arrays: t (F,), probe and target (F, 7) poses, contact, coupling and\n"
-           "device (F, 6) wrenches (torques about the probe's centre of mass), patches (F,).")
-      .def_prop_ro("done", [](const PyRunner& r) { return r.finished; }, "True once the session has run.")
-      .def_prop_ro("device_loop", [](const PyRunner& r) {
-             const hrt::DeviceLoopStats& st = r.runner->loop().stats();
-             nb::dict d;
-             d["ticks"] = st.ticks;
-             d["force_clamps"] = st.force_clamps;
-             d["torque_clamps"] = st.torque_clamps;
-             d["rate_limited"] = st.rate_limited;
-             d["non_finite"] = st.non_finite;
-             d["watchdog_events"] = st.watchdog_events;
-             d["commands"] = st.commands;
-             return d;
-           }, "The device loop's counters (ticks, clamps, watchdog events, ...), as `hrt run --json` prints.");
+  nb::class_<PyRunner>(
+      m, "Runner",
+      "A scene file's haptic session (docs/scene-format.md) in lockstep: the scripted or virtual device,\n"
+      "the device loop and the simulation of `hrt run --lockstep`, frame by frame.")
+      .def(
+          "__init__",
+          [](PyRunner* self, const std::string& scene, nb::object duration, const std::string& trace,
+             const std::string& device, bool write_trace, bool keep_frames) {
+            if (device != "file" && device != "virtual")
+              throw std::invalid_argument("device must be \"file\" or \"virtual\", got \"" + device + "\"");
+            hrt::RunConfig cfg = hrt::load_run_config(scene);
+            hrt::RunOverrides o;
+            o.lockstep = true;
+            if (!duration.is_none()) o.duration = nb::cast<double>(duration);
+            o.trace = trace;
+            hrt::apply_overrides(cfg, o);
+            if (!write_trace) cfg.trace.path.clear(), cfg.trace.device_log.clear();
+            if (device == "virtual" && cfg.device.type != "virtual") {
+              // The file's device replaced by a virtual handle holding the
+              // probe's initial pose (its limits and workspace kept; a
+              // plugin's limits are its own, so the file's defaults apply).
+              cfg.device.type = "virtual";
+              cfg.device.start = cfg.loop.map.to_device(cfg.objects.at(0).pose);
+              cfg.device.start_set = false;
+            }
+            hrt::check_run_outputs(cfg);
+            if (cfg.device.type != "scripted" && cfg.device.type != "virtual")
+              throw std::invalid_argument(cfg.file + ": lockstep needs a scripted or virtual device (device.type = \"" +
+                                          cfg.device.type + "\")");
+            auto runner = std::make_unique<hrt::Runner>(cfg);
+            runner->open();
+            std::unique_ptr<hrt::TraceWriter> writer;
+            if (!runner->config().trace.path.empty()) {
+              writer = std::make_unique<hrt::TraceWriter>();
+              writer->open(runner->config().trace.path, runner->config());
+            }
+            new (self) PyRunner();
+            self->runner = std::move(runner);
+            self->trace = std::move(writer);
+            self->keep = keep_frames;
+          },
+          "scene"_a, "duration"_a = nb::none(), "trace"_a = "", "device"_a = "file", "write_trace"_a = true,
+          "keep_frames"_a = true,
+          "Loads the scene file (its bundles, trajectories and scripted or virtual device) and opens the\n"
+          "session. duration (s) and trace (a path) override the file's, as `hrt run --duration --trace`\n"
+          "do. device=\"virtual\" replaces the file's device with a virtual one (set_device_pose) that\n"
+          "starts where the probe starts, keeping the file's limits and workspace map. write_trace=False\n"
+          "writes no trace even where the file names one; keep_frames=False keeps no frames in `frames`\n"
+          "(a long interactive session).\n"
+          "Raises hrt.SceneFileError, hrt.BundleError, hrt.DeviceError or ValueError.")
+      .def(
+          "step",
+          [](PyRunner& r) -> nb::object {
+            if (r.finished) return nb::none();
+            const hrt::SessionFrame* fr = nullptr;
+            {
+              nb::gil_scoped_release release;
+              fr = r.runner->step();
+            }
+            if (!fr) {
+              r.finish();
+              return nb::none();
+            }
+            r.record(*fr);
+            return r.frame_dict(*fr);
+          },
+          "Runs the device loop to the next simulation frame and returns it (t, frame, probe and target\n"
+          "poses (7,), contact, coupling and device wrenches (6,), patches), or None at the end.")
+      .def(
+          "set_device_pose",
+          [](PyRunner& r, nb::ndarray<const double, nb::shape<7>, nb::c_contig, nb::device::cpu> pose, bool clutch) {
+            hrt::VirtualDevice* dev = r.runner->virtual_device();
+            if (!dev)
+              throw std::invalid_argument("set_device_pose: the device is \"" + r.runner->config().device.type +
+                                          "\", not \"virtual\"");
+            const double* p = pose.data();
+            hrt::Pose d;
+            d.position = hrt::Vec3(p[0], p[1], p[2]);
+            d.rotation = Eigen::Quaterniond(p[6], p[3], p[4], p[5]);
+            if (!dev->set_pose(d, clutch))
+              throw std::invalid_argument("set_device_pose: the pose must be finite with a non-zero quaternion");
+          },
+          "pose"_a, "clutch"_a = false,
+          "A virtual device ([device] type = \"virtual\"): the handle's pose (x y z qx qy qz qw, device\n"
+          "frame) read by every device tick from the next step() on, and its clutch.")
+      .def(
+          "target_to_device",
+          [](const PyRunner& r, nb::ndarray<const double, nb::shape<7>, nb::c_contig, nb::device::cpu> pose) {
+            const double* p = pose.data();
+            hrt::Pose t;
+            t.position = hrt::Vec3(p[0], p[1], p[2]);
+            t.rotation = Eigen::Quaterniond(p[6], p[3], p[4], p[5]);
+            if (!t.position.allFinite() || !(t.rotation.norm() > 1e-12))
+              throw std::invalid_argument("target_to_device: the pose must be finite with a non-zero quaternion");
+            double out[7];
+            pose7(r.runner->config().loop.map.to_device(t), out);
+            return array(out, {7});
+          },
+          "pose"_a,
+          "The handle pose (device frame) whose coupling target is `pose` (the probe's object frame in\n"
+          "the scene): the inverse of the scene file's [workspace] map (before any clutch re-indexing).")
+      .def(
+          "run",
+          [](PyRunner& r) {
+            {
+              nb::gil_scoped_release release;
+              while (!r.finished) {
+                const hrt::SessionFrame* fr = r.runner->step();
+                if (!fr) break;
+                r.record(*fr);
+              }
+            }
+            r.finish();
+          },
+          "Runs the rest of the session (and closes its trace).")
+      .def_prop_ro(
+          "frames",
+          [](const PyRunner& r) {
+            const size_t f = r.t.size();
+            nb::dict d;
+            d["t"] = array(r.t.data(), {f});
+            d["probe"] = array(r.probe.data(), {f, 7});
+            d["target"] = array(r.target.data(), {f, 7});
+            d["contact"] = array(r.contact.data(), {f, 6});
+            d["coupling"] = array(r.coupling.data(), {f, 6});
+            d["device"] = array(r.device.data(), {f, 6});
+            d["patches"] = nb::cast(r.patches);
+            return d;
+          },
+          "Every frame so far as arrays: t (F,), probe and target (F, 7) poses, contact, coupling and\n"
+          "device (F, 6) wrenches (torques about the probe's centre of mass), patches (F,).")
+      .def_prop_ro(
+          "done", [](const PyRunner& r) { return r.finished; }, "True once the session has run.")
+      .def_prop_ro(
+          "device_loop",
+          [](const PyRunner& r) {
+            const hrt::DeviceLoopStats& st = r.runner->loop().stats();
+            nb::dict d;
+            d["ticks"] = st.ticks;
+            d["force_clamps"] = st.force_clamps;
+            d["torque_clamps"] = st.torque_clamps;
+            d["rate_limited"] = st.rate_limited;
+            d["non_finite"] = st.non_finite;
+            d["watchdog_events"] = st.watchdog_events;
+            d["commands"] = st.commands;
+            return d;
+          },
+          "The device loop's counters (ticks, clamps, watchdog events, ...), as `hrt run --json` prints.");
 }

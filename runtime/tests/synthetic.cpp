@@ -81,7 +81,8 @@ Eigen::Vector2d Relief::gradient(double x, double y) const {
 }
 
 SynthBlock make_block(const BlockSpec& spec_in) {
-  if (spec_in.atlas_size < 64 || spec_in.subdiv < 1) throw std::invalid_argument("synth: atlas_size >= 64, subdiv >= 1");
+  if (spec_in.atlas_size < 64 || spec_in.subdiv < 1)
+    throw std::invalid_argument("synth: atlas_size >= 64, subdiv >= 1");
   SynthBlock out;
   out.spec = spec_in;
   out.spec.relief.face_up = spec_in.face_up;
@@ -159,17 +160,40 @@ SynthBlock make_block(const BlockSpec& spec_in) {
     }
   // Sides (cells 1..4): strips between the face boundary and the back
   // boundary; rectangle coordinate s along the edge, r = 0 at the face, 1 at the back.
-  struct Side { int cell; Vec3 out_dir; };
+  struct Side {
+    int cell;
+    Vec3 out_dir;
+  };
   const Side sides[4] = {{1, Vec3(0, -1, 0)}, {2, Vec3(1, 0, 0)}, {3, Vec3(0, 1, 0)}, {4, Vec3(-1, 0, 0)}};
   for (const Side& sd : sides) {
     const FaceRect R = cell_rect(sd.cell);
     for (int k = 0; k < S; ++k) {
       int i0, j0, i1, j1;
       switch (sd.cell) {
-        case 1: i0 = k; j0 = 0; i1 = k + 1; j1 = 0; break;
-        case 2: i0 = S; j0 = k; i1 = S; j1 = k + 1; break;
-        case 3: i0 = k; j0 = S; i1 = k + 1; j1 = S; break;
-        default: i0 = 0; j0 = k; i1 = 0; j1 = k + 1; break;
+        case 1:
+          i0 = k;
+          j0 = 0;
+          i1 = k + 1;
+          j1 = 0;
+          break;
+        case 2:
+          i0 = S;
+          j0 = k;
+          i1 = S;
+          j1 = k + 1;
+          break;
+        case 3:
+          i0 = k;
+          j0 = S;
+          i1 = k + 1;
+          j1 = S;
+          break;
+        default:
+          i0 = 0;
+          j0 = k;
+          i1 = 0;
+          j1 = k + 1;
+          break;
       }
       const Vec2f f0 = rect_uv(R, double(k) / S, 0), f1 = rect_uv(R, double(k + 1) / S, 0);
       const Vec2f b0 = rect_uv(R, double(k) / S, 1), b1 = rect_uv(R, double(k + 1) / S, 1);
@@ -211,10 +235,22 @@ SynthBlock make_block(const BlockSpec& spec_in) {
     fill(cell_rect(sd.cell), [&](double s, double r) {
       double x, y;
       switch (sd.cell) {
-        case 1: x = -sx / 2 + s * sx; y = -sy / 2; break;
-        case 2: x = sx / 2; y = -sy / 2 + s * sy; break;
-        case 3: x = -sx / 2 + s * sx; y = sy / 2; break;
-        default: x = -sx / 2; y = -sy / 2 + s * sy; break;
+        case 1:
+          x = -sx / 2 + s * sx;
+          y = -sy / 2;
+          break;
+        case 2:
+          x = sx / 2;
+          y = -sy / 2 + s * sy;
+          break;
+        case 3:
+          x = -sx / 2 + s * sx;
+          y = sy / 2;
+          break;
+        default:
+          x = -sx / 2;
+          y = -sy / 2 + s * sy;
+          break;
       }
       // The side is planar; its face edge follows the coarse face (bump).
       const double zf = coarse.z(x, y);

@@ -25,15 +25,15 @@ enum class Profile { flat, sine, ridges };
 
 struct Relief {
   Profile profile = Profile::flat;
-  double amplitude = 0.0;   // a, m (sine: a sin; ridges: plateaus at +-a)
-  double wavelength = 1e-3; // lambda, m
-  double angle = 0.0;       // rad: ridge normal m = (cos angle, sin angle) in the face's (x, y)
-  double shift = 0.0;       // m: the profile is a function of m . (x, y) - shift
-  double offset = 0.0;      // m: constant added (a "textured" flat face)
-  double flank = 0.15;      // ridges: fraction of the period taken by each flank
-  double bump = 0.0;        // 1/m: curvature c of the bump - sign * c |x - bump_centre|^2 / 2, see z()
+  double amplitude = 0.0;    // a, m (sine: a sin; ridges: plateaus at +-a)
+  double wavelength = 1e-3;  // lambda, m
+  double angle = 0.0;        // rad: ridge normal m = (cos angle, sin angle) in the face's (x, y)
+  double shift = 0.0;        // m: the profile is a function of m . (x, y) - shift
+  double offset = 0.0;       // m: constant added (a "textured" flat face)
+  double flank = 0.15;       // ridges: fraction of the period taken by each flank
+  double bump = 0.0;         // 1/m: curvature c of the bump - sign * c |x - bump_centre|^2 / 2, see z()
   double bump_x = 0.0, bump_y = 0.0;
-  bool face_up = true;      // set by make_block: the bump protrudes outwards
+  bool face_up = true;  // set by make_block: the bump protrudes outwards
 
   // Profile value p(xi) in [-1, 1] of the phase coordinate xi = (m.x - shift) / lambda.
   double profile_value(double xi) const;
@@ -57,7 +57,7 @@ struct SynthBlock {
   std::vector<uint32_t> face_tris;  // the triangles of the textured face
   std::vector<uint32_t> back_tris;  // the triangles of the opposite face
   BlockSpec spec;
-  double atlas_texel = 0;           // m, size of one atlas texel on the textured face (largest of x, y)
+  double atlas_texel = 0;  // m, size of one atlas texel on the textured face (largest of x, y)
 };
 
 SynthBlock make_block(const BlockSpec& spec);

@@ -211,8 +211,7 @@ TEST(Collision, BroadPhaseMatchesBruteForce) {
   for (int trial = 0; trial < 30; ++trial) {
     Eigen::Quaterniond q(U(rng), U(rng), U(rng), U(rng));
     st.poses[0] = pose_at(Vec3(U(rng), U(rng), U(rng)) * 0.04, q);
-    st.poses[1] = pose_at(Vec3(U(rng), U(rng), U(rng)) * 0.01,
-                          Eigen::Quaterniond(U(rng), U(rng), U(rng), U(rng)));
+    st.poses[1] = pose_at(Vec3(U(rng), U(rng), U(rng)) * 0.01, Eigen::Quaterniond(U(rng), U(rng), U(rng), U(rng)));
     hrt::detect_pairs(scene, st);
     std::set<std::pair<int, int>> got;
     for (int i = 0; i < st.num_pairs; ++i) got.insert({st.pairs[i].piece_a, st.pairs[i].piece_b});
@@ -238,7 +237,7 @@ TEST(Collision, BroadPhaseMatchesBruteForce) {
 // Adjacency: pieces that touch are adjacent, separated ones are not.
 TEST(Collision, PieceAdjacency) {
   hrt::Model m = make_boxes({Box{Vec3(0, 0, 0), Vec3(0.01, 0.01, 0.01)},
-                             Box{Vec3(0.01, 0, 0), Vec3(0.02, 0.01, 0.01)},    // shares a face with 0
+                             Box{Vec3(0.01, 0, 0), Vec3(0.02, 0.01, 0.01)},   // shares a face with 0
                              Box{Vec3(0.05, 0, 0), Vec3(0.06, 0.01, 0.01)}},  // 3 cm away
                             "three");
   const auto g = hrt::collision::build_geometry(m, false);

@@ -54,9 +54,7 @@ bool is_integer(double x, double eps = 1e-6) { return std::abs(x - std::round(x)
 struct BarOnPlate {
   hrt::Model bar = make_box(Vec3(-0.02, -0.01, -0.005), Vec3(0.02, 0.01, 0.005), "bar");
   hrt::Model plate = make_box(Vec3(-0.1, -0.1, -0.01), Vec3(0.1, 0.1, 0.0), "plate");
-  Pose above(double gap = 0.5e-3, Vec3 xy = Vec3::Zero()) const {
-    return pose_at(Vec3(xy.x(), xy.y(), 0.005 + gap));
-  }
+  Pose above(double gap = 0.5e-3, Vec3 xy = Vec3::Zero()) const { return pose_at(Vec3(xy.x(), xy.y(), 0.005 + gap)); }
 };
 
 }  // namespace
@@ -126,34 +124,35 @@ TEST(Contact, WindowCoversPatchAndSnapsToBLattice) {
 TEST(Contact, WindowPaddingCoversTheFiniteDifferenceSteps) {
   BarOnPlate m;
   for (int resolution : {16, 32, 50, 64, 128})
-  for (double lin_step : {0.0, 3e-3}) {
-    SceneOptions o = opts(1e-3, resolution);
-    o.force.lin_step = lin_step;
-    o.force.ang_step = lin_step > 0 ? 1e-4 : 0.0;  // small: the padding is lin_step's
-    Scene scene({&m.bar, &m.plate}, o);
-    State st(scene);
-    std::mt19937 rng(5);
-    std::uniform_real_distribution<double> U(-1, 1);
-    for (int trial = 0; trial < 40; ++trial) {
-      const Pose pb = pose_at(Vec3(U(rng), U(rng), 0) * 0.003, Eigen::Quaterniond(Eigen::AngleAxisd(U(rng), Vec3::UnitZ())));
-      st.poses[1] = pb;
-      st.poses[0] = pose_at(pb.position + Vec3(U(rng) * 0.03, U(rng) * 0.03, 0.0055),
-                            Eigen::Quaterniond(Eigen::AngleAxisd(3 * U(rng), Vec3::UnitZ())));
-      run_contacts(scene, st);
-      ASSERT_EQ(st.num_patches, 1);
-      const ContactPatch& p = st.patches[0];
-      const double pad = lin_step > 0 ? lin_step : p.window.cell;
-      const Eigen::Vector2d o2 = uv_of(p, pb, p.window.origin);
-      const double side = p.window.resolution * p.window.cell;
-      const Eigen::Isometry3d wa = st.poses[0].iso();
-      for (double x : {-0.02, 0.02})
-        for (double y : {-0.01, 0.01}) {
-          const Eigen::Vector2d c = uv_of(p, pb, wa * Vec3(x, y, -0.005)) - o2;
-          EXPECT_GE(c.minCoeff(), pad - 1e-12) << "trial " << trial;
-          EXPECT_LE(c.maxCoeff(), side - pad + 1e-12) << "trial " << trial;
-        }
+    for (double lin_step : {0.0, 3e-3}) {
+      SceneOptions o = opts(1e-3, resolution);
+      o.force.lin_step = lin_step;
+      o.force.ang_step = lin_step > 0 ? 1e-4 : 0.0;  // small: the padding is lin_step's
+      Scene scene({&m.bar, &m.plate}, o);
+      State st(scene);
+      std::mt19937 rng(5);
+      std::uniform_real_distribution<double> U(-1, 1);
+      for (int trial = 0; trial < 40; ++trial) {
+        const Pose pb =
+            pose_at(Vec3(U(rng), U(rng), 0) * 0.003, Eigen::Quaterniond(Eigen::AngleAxisd(U(rng), Vec3::UnitZ())));
+        st.poses[1] = pb;
+        st.poses[0] = pose_at(pb.position + Vec3(U(rng) * 0.03, U(rng) * 0.03, 0.0055),
+                              Eigen::Quaterniond(Eigen::AngleAxisd(3 * U(rng), Vec3::UnitZ())));
+        run_contacts(scene, st);
+        ASSERT_EQ(st.num_patches, 1);
+        const ContactPatch& p = st.patches[0];
+        const double pad = lin_step > 0 ? lin_step : p.window.cell;
+        const Eigen::Vector2d o2 = uv_of(p, pb, p.window.origin);
+        const double side = p.window.resolution * p.window.cell;
+        const Eigen::Isometry3d wa = st.poses[0].iso();
+        for (double x : {-0.02, 0.02})
+          for (double y : {-0.01, 0.01}) {
+            const Eigen::Vector2d c = uv_of(p, pb, wa * Vec3(x, y, -0.005)) - o2;
+            EXPECT_GE(c.minCoeff(), pad - 1e-12) << "trial " << trial;
+            EXPECT_LE(c.maxCoeff(), side - pad + 1e-12) << "trial " << trial;
+          }
+      }
     }
-  }
 }
 
 // Hysteresis of the texel size: while A slides off B's edge and the domain
@@ -330,8 +329,8 @@ TEST(Contact, SeparatedRegionsGiveSeparatePatches) {
 // pieces' radii (5.1 + 1.2 cm): two patches, not one window spanning both.
 TEST(Contact, DistantContactsOnAdjacentPiecesStaySeparate) {
   hrt::Model bar = make_box(Vec3(-0.06, -0.005, -0.002), Vec3(0.06, 0.005, 0.002), "bar");
-  hrt::Model b = make_boxes({Box{Vec3(-0.1, -0.01, -0.005), Vec3(0.0, 0.01, 0.0)},       // floor
-                             Box{Vec3(-0.1, -0.01, 0.0), Vec3(-0.09, 0.01, 0.01)}},     // tower on it
+  hrt::Model b = make_boxes({Box{Vec3(-0.1, -0.01, -0.005), Vec3(0.0, 0.01, 0.0)},   // floor
+                             Box{Vec3(-0.1, -0.01, 0.0), Vec3(-0.09, 0.01, 0.01)}},  // tower on it
                             "floor_tower");
   Scene scene({&bar, &b}, opts(1e-3));
   State st(scene);
@@ -349,12 +348,12 @@ TEST(Contact, DistantContactsOnAdjacentPiecesStaySeparate) {
 
 // One contact region spanning two touching pieces of B (and two of A) is one patch.
 TEST(Contact, TouchingPiecesFormOnePatch) {
-  hrt::Model a = make_boxes({Box{Vec3(-0.02, -0.01, -0.005), Vec3(0.0, 0.01, 0.005)},
-                             Box{Vec3(0.0, -0.01, -0.005), Vec3(0.02, 0.01, 0.005)}},
-                            "a2");
-  hrt::Model b = make_boxes({Box{Vec3(-0.05, -0.05, -0.01), Vec3(0.003, 0.05, 0.0)},
-                             Box{Vec3(0.003, -0.05, -0.01), Vec3(0.05, 0.05, 0.0)}},
-                            "b2");
+  hrt::Model a = make_boxes(
+      {Box{Vec3(-0.02, -0.01, -0.005), Vec3(0.0, 0.01, 0.005)}, Box{Vec3(0.0, -0.01, -0.005), Vec3(0.02, 0.01, 0.005)}},
+      "a2");
+  hrt::Model b = make_boxes(
+      {Box{Vec3(-0.05, -0.05, -0.01), Vec3(0.003, 0.05, 0.0)}, Box{Vec3(0.003, -0.05, -0.01), Vec3(0.05, 0.05, 0.0)}},
+      "b2");
   Scene scene({&a, &b}, opts());
   State st(scene);
   st.poses[0] = pose_at(Vec3(0, 0, 0.0055));
@@ -374,7 +373,7 @@ TEST(Contact, TouchingPiecesFormOnePatch) {
 // touched by one cube: the normals differ by 90 degrees -> two patches.
 TEST(Contact, SharpEdgeSplitsByNormalAngle) {
   hrt::Model cube = make_box(Vec3(-0.01, -0.01, -0.01), Vec3(0.01, 0.01, 0.01), "cube");
-  hrt::Model corner = make_boxes({Box{Vec3(-0.05, -0.05, -0.01), Vec3(0.05, 0.05, 0.0)},    // floor
+  hrt::Model corner = make_boxes({Box{Vec3(-0.05, -0.05, -0.01), Vec3(0.05, 0.05, 0.0)},   // floor
                                   Box{Vec3(0.0105, -0.05, 0.0), Vec3(0.03, 0.05, 0.05)}},  // wall at x = 10.5 mm
                                  "corner");
   Scene scene({&cube, &corner}, opts(1e-3));
@@ -447,9 +446,9 @@ TEST(Contact, PatchIdentityEndsWhenContactBreaks) {
 // -z towards +x smoothly, not by a 45 degree jump when the wall pair enters.
 TEST(Contact, NormalIsContinuousWhenPairsEnter) {
   hrt::Model cube = make_box(Vec3(-0.01, -0.01, -0.01), Vec3(0.01, 0.01, 0.01), "cube");
-  hrt::Model corner = make_boxes({Box{Vec3(-0.05, -0.05, -0.01), Vec3(0.05, 0.05, 0.0)},
-                                  Box{Vec3(0.0105, -0.05, 0.0), Vec3(0.03, 0.05, 0.05)}},
-                                 "corner");
+  hrt::Model corner = make_boxes(
+      {Box{Vec3(-0.05, -0.05, -0.01), Vec3(0.05, 0.05, 0.0)}, Box{Vec3(0.0105, -0.05, 0.0), Vec3(0.03, 0.05, 0.05)}},
+      "corner");
   SceneOptions o = opts(1e-3);
   o.cluster.max_normal_angle_deg = 100;
   Scene scene({&cube, &corner}, o);
@@ -457,7 +456,7 @@ TEST(Contact, NormalIsContinuousWhenPairsEnter) {
   Vec3 prev_n = Vec3::Zero();
   int max_pairs = 0;
   for (int k = 0; k <= 70; ++k) {
-    const double wall_gap = 1.5e-3 - k * 2e-5;  // 1.5 mm -> 0.1 mm in 20 um steps
+    const double wall_gap = 1.5e-3 - k * 2e-5;                  // 1.5 mm -> 0.1 mm in 20 um steps
     st.poses[0] = pose_at(Vec3(0.0005 - wall_gap, 0, 0.0103));  // floor gap 0.3 mm
     run_contacts(scene, st);
     ASSERT_EQ(st.num_patches, 1) << k;

@@ -37,8 +37,8 @@ Eigen::Isometry3d random_motion(std::mt19937& rng) {
 }
 
 // The resultant of both wrenches about point p (must vanish).
-Vec6 resultant_about(const Vec3& p, const Vec3& fa, const Vec3& ta, const Vec3& ca, const Vec3& fb,
-                     const Vec3& tb, const Vec3& cb) {
+Vec6 resultant_about(const Vec3& p, const Vec3& fa, const Vec3& ta, const Vec3& ca, const Vec3& fb, const Vec3& tb,
+                     const Vec3& cb) {
   Vec6 r;
   r.head<3>() = fa + fb;
   r.tail<3>() = ta + (ca - p).cross(fa) + tb + (cb - p).cross(fb);
@@ -60,8 +60,8 @@ TEST(Frame, FlatOverlapGivesStiffnessTimesDepth) {
   for (double delta0 : {0.1e-3, 0.35e-3}) {
     for (int trial = 0; trial < 3; ++trial) {
       const Eigen::Isometry3d G = random_motion(rng);
-      st.poses[0] = hrt_test::moved(G, pose_at(Vec3(0.013, -0.007, 0.005 - delta0),
-                                               Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Vec3::UnitZ()))));
+      st.poses[0] = hrt_test::moved(
+          G, pose_at(Vec3(0.013, -0.007, 0.005 - delta0), Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Vec3::UnitZ()))));
       st.poses[1] = hrt_test::moved(G, pose_at(Vec3::Zero()));
       hrt::frame(scene, st);
       ASSERT_EQ(st.num_patches, 1);
@@ -127,7 +127,7 @@ TEST(Frame, WrenchesSumOverPatchesAndObjects) {
   Scene scene({&bar, &supports, &cube}, o);
   State st(scene);
   const double d_left = 0.3e-3, d_right = 0.2e-3, d_top = 0.15e-3;
-  st.poses[0] = pose_at(Vec3(0, 0, 0.005 - d_left));   // left support top at z = 0, right at -0.1 mm
+  st.poses[0] = pose_at(Vec3(0, 0, 0.005 - d_left));  // left support top at z = 0, right at -0.1 mm
   st.poses[1] = pose_at(Vec3::Zero());
   st.poses[2] = pose_at(Vec3(0.0, 0.0, 0.005 - d_left + 0.005 + 0.005 - d_top));  // cube on top of the bar
   hrt::frame(scene, st);

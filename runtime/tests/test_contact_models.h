@@ -61,12 +61,18 @@ inline hrt::Model make_boxes(const std::vector<Box>& boxes, const std::string& n
       m.vertices.emplace_back((k & 1) ? bx.hi.x() : bx.lo.x(), (k & 2) ? bx.hi.y() : bx.lo.y(),
                               (k & 4) ? bx.hi.z() : bx.lo.z());
     // Outward CCW triangles: (-x) (+x) (-y) (+y) (-z) (+z).
-    const std::array<std::array<uint32_t, 3>, 12> tris = {{{0, 4, 6}, {0, 6, 2},
-                                                          {1, 3, 7}, {1, 7, 5},
-                                                          {0, 1, 5}, {0, 5, 4},
-                                                          {2, 6, 7}, {2, 7, 3},
-                                                          {0, 2, 3}, {0, 3, 1},
-                                                          {4, 5, 7}, {4, 7, 6}}};
+    const std::array<std::array<uint32_t, 3>, 12> tris = {{{0, 4, 6},
+                                                           {0, 6, 2},
+                                                           {1, 3, 7},
+                                                           {1, 7, 5},
+                                                           {0, 1, 5},
+                                                           {0, 5, 4},
+                                                           {2, 6, 7},
+                                                           {2, 7, 3},
+                                                           {0, 2, 3},
+                                                           {0, 3, 1},
+                                                           {4, 5, 7},
+                                                           {4, 7, 6}}};
     hrt::ConvexPiece piece;
     for (int k = 0; k < 8; ++k) piece.vertices.push_back(m.vertices[base + static_cast<uint32_t>(k)]);
     for (int t = 0; t < 12; ++t) {
@@ -90,8 +96,8 @@ inline hrt::Model make_boxes(const std::vector<Box>& boxes, const std::string& n
           const Vec3& p = m.vertices[f[static_cast<size_t>(c3)]];
           const double fx = (p.x() - bx.lo.x()) / (bx.hi.x() - bx.lo.x());
           const double fy = (p.y() - bx.lo.y()) / (bx.hi.y() - bx.lo.y());
-          uv[static_cast<size_t>(c3)] = hrt::Vec2f(static_cast<float>(u0 + fx * (u1 - u0)),
-                                                    static_cast<float>(v0 + fy * (v1 - v0)));
+          uv[static_cast<size_t>(c3)] =
+              hrt::Vec2f(static_cast<float>(u0 + fx * (u1 - u0)), static_cast<float>(v0 + fy * (v1 - v0)));
         }
       } else {
         double u0, u1, v0, v1;
@@ -144,7 +150,7 @@ inline hrt::Model make_boxes(const std::vector<Box>& boxes, const std::string& n
   m.quality.hull_deviation = 0.0;
   m.quality.texel_size = (hi_all - lo_all).maxCoeff() / texels_per_strip;
   m.quality.min_wavelength = 0.0;  // no relief: never undersampled
-  hrt::prepare_surface_map(m);  // as load_bundle does
+  hrt::prepare_surface_map(m);     // as load_bundle does
   return m;
 }
 

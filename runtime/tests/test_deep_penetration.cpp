@@ -119,7 +119,8 @@ TEST(DeepFallback, FlippedPairKeepsItsAxisAndTheForceIsTheGradientOfItsEnergy) {
       double lo = 1;
       for (const Vec3& x : a.pieces[0].vertices) lo = std::min(lo, (q * x).z());
       return -lo;
-    }() : 0.002;
+    }()
+                               : 0.002;
     st.poses[0] = pose_at(Vec3(0.01, -0.02, lift - 0.5e-3), q);
     hrt::frame(scene, st);
     ASSERT_EQ(st.num_patches, 1) << what;

@@ -65,8 +65,8 @@ TEST(DepthAnalytic, FlatPlatesDeltaIsOverlapAndForceIsNormal) {
     // 32 texels of 0.2 mm: A's 4 mm footprint edges fall on texel edges,
     // symmetric about A's centre of mass (so that the flat-on-flat tilt
     // derivatives, which have a kink at 0, cancel exactly).
-    ContactPatch patch = synth::make_patch(Vec3(0, 0, -1), Vec3::UnitX(), Vec3(0, 0, 1e-4), 2e-4, 32, A.face_tris,
-                                           B.face_tris);
+    ContactPatch patch =
+        synth::make_patch(Vec3(0, 0, -1), Vec3::UnitX(), Vec3(0, 0, 1e-4), 2e-4, 32, A.face_tris, B.face_tris);
     if (trial > 0) synth::transform_scene(random_rotation(rng), pa, pb, patch);
     for (bool sc : {false, true}) {
       DepthScratch scratch;

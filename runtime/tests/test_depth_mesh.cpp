@@ -131,9 +131,9 @@ Reference brute_force(const hrt::Model& M, const std::vector<uint32_t>& tris, co
             const size_t t = static_cast<size_t>(gj) * N + gi;
             // Meets the square grown by a hair: the loose bound.
             constexpr double e = 1e-6;
-            std::vector<P2> g = clip(clip(clip(clip(tri, 0, gi - 0.5 - e, false), 0, gi + 0.5 + e, true), 1,
-                                          gj - 0.5 - e, false),
-                                     1, gj + 0.5 + e, true);
+            std::vector<P2> g =
+                clip(clip(clip(clip(tri, 0, gi - 0.5 - e, false), 0, gi + 0.5 + e, true), 1, gj - 0.5 - e, false), 1,
+                     gj + 0.5 + e, true);
             if (g.empty()) continue;
             r.corners[t] = std::max(r.corners[t], top);
             if (!must[q]) continue;
@@ -150,9 +150,8 @@ Reference brute_force(const hrt::Model& M, const std::vector<uint32_t>& tris, co
   return r;
 }
 
-std::vector<double> mesh_heights(const hrt::Model& M, const std::vector<uint32_t>& tris,
-                                 const hrt::ContactPatch& patch, bool keep_max,
-                                 double cull = std::numeric_limits<double>::quiet_NaN()) {
+std::vector<double> mesh_heights(const hrt::Model& M, const std::vector<uint32_t>& tris, const hrt::ContactPatch& patch,
+                                 bool keep_max, double cull = std::numeric_limits<double>::quiet_NaN()) {
   const int N = patch.window.resolution;
   std::vector<double> h(static_cast<size_t>(N) * N);
   hrt::rasterize_heights(M, Eigen::Isometry3d::Identity(), tris, patch.n, patch.u, patch.v, patch.window, 0, keep_max,
@@ -191,8 +190,8 @@ TEST(MeshHeights, EveryTexelBetweenTheExactAndTheCornerBoundsOfTheBruteForce) {
   // under 44 texels), n tilted off the face normal by angles that are not
   // multiples of 45 degrees; the block as B (n into its face, the smallest
   // height kept) and as A (n out of it, the largest).
-  for (const Case& c : {Case{0, 3e-5, 48, false}, Case{17, 3e-5, 48, true}, Case{38, 4.5e-4, 44, false},
-                        Case{29, 4.5e-4, 44, true}}) {
+  for (const Case& c :
+       {Case{0, 3e-5, 48, false}, Case{17, 3e-5, 48, true}, Case{38, 4.5e-4, 44, false}, Case{29, 4.5e-4, 44, true}}) {
     SCOPED_TRACE(testing::Message() << "tilt " << c.tilt_deg << " cell " << c.cell << " keep_max " << c.keep_max);
     const Vec3 down = Eigen::AngleAxisd(c.tilt_deg * kPi / 180, axis) * Vec3(0, 0, -1);
     const Vec3 n = c.keep_max ? Vec3(-down) : down;
@@ -210,7 +209,8 @@ TEST(MeshHeights, EveryTexelBetweenTheExactAndTheCornerBoundsOfTheBruteForce) {
         ++covered;
         if (!(h[t] >= lo - eps && h[t] <= hi + eps)) {
           ++bad;
-          ADD_FAILURE() << "texel " << t % c.N << "," << t / c.N << " h " << h[t] << " exact " << ref.exact[t] << " corners " << ref.corners[t];
+          ADD_FAILURE() << "texel " << t % c.N << "," << t / c.N << " h " << h[t] << " exact " << ref.exact[t]
+                        << " corners " << ref.corners[t];
         }
       } else if (std::isfinite(h[t]) && !std::isfinite(ref.corners[t])) {
         ++bad;  // a height where no quad's triangle meets the square

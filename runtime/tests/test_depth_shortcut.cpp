@@ -131,7 +131,8 @@ TEST(DepthShortcut, SeededResolveMatchesRasterization) {
       }
       // Not vacuous: the configurations differ from configuration 0 by far more.
       EXPECT_GT(std::abs(g.delta_at[1] - g.delta_at[2]), 20 * bound);
-      std::printf("seeded vs rasterized (small_a %d, seed %d): worst %.3g m, bound %.3g m\n", small_a, seed, worst, bound);
+      std::printf("seeded vs rasterized (small_a %d, seed %d): worst %.3g m, bound %.3g m\n", small_a, seed, worst,
+                  bound);
     }
   }
 }
@@ -183,10 +184,10 @@ TEST(DepthShortcut, UndersamplingWarnsOncePerPatchLifetime) {
   sa.face_up = false;
   const auto A = synth::make_block(sa);
   const double lam = std::min(A.model.quality.min_wavelength, B.model.quality.min_wavelength);
-  ContactPatch fine = synth::make_patch(Vec3(0, 0, -1), Vec3::UnitX(), Vec3::Zero(), 0.5 * lam, 16, A.face_tris,
-                                        B.face_tris);
-  ContactPatch coarse = synth::make_patch(Vec3(0, 0, -1), Vec3::UnitX(), Vec3::Zero(), 0.51 * lam, 16, A.face_tris,
-                                          B.face_tris);
+  ContactPatch fine =
+      synth::make_patch(Vec3(0, 0, -1), Vec3::UnitX(), Vec3::Zero(), 0.5 * lam, 16, A.face_tris, B.face_tris);
+  ContactPatch coarse =
+      synth::make_patch(Vec3(0, 0, -1), Vec3::UnitX(), Vec3::Zero(), 0.51 * lam, 16, A.face_tris, B.face_tris);
   EXPECT_FALSE(grid_undersamples(A.model, B.model, fine.window));
   EXPECT_TRUE(grid_undersamples(A.model, B.model, coarse.window));
   DepthScratch scratch;
@@ -255,7 +256,8 @@ TEST(DepthShortcut, RasterizerSamplesLikeAtlasSample) {
   for (float& x : B.model.atlas.rgba) x += U(rng);
   const int N = 40;
   ContactPatch p = synth::make_patch(Vec3(0.3, 0.2, -1), Vec3::UnitX(), Vec3(1e-3, -2e-3, 0), 2e-4, N, {}, B.face_tris);
-  const Pose pb = synth::make_pose(Vec3(0, 0, 0), Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Vec3(1, 2, 3).normalized())));
+  const Pose pb =
+      synth::make_pose(Vec3(0, 0, 0), Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Vec3(1, 2, 3).normalized())));
   std::vector<double> h(static_cast<size_t>(N) * N);
   // The literal Eq. 8 (the noise above makes the atlas jump between texels,
   // which the surface mode would rightly refuse to interpolate across).

@@ -27,8 +27,8 @@ struct Column {
 // the worst |height - closed form| over the covered texels.
 Column compare(const hrt::synth::SynthBlock& B, const Vec3& n, hrt::HeightMode mode) {
   const double lam = B.spec.relief.wavelength;
-  const hrt::ContactPatch patch = hrt::synth::make_patch(n, Vec3(1, 0.2, 0), Vec3(1e-4, -2e-4, 0), lam / 40, 50,
-                                                         {}, B.face_tris);
+  const hrt::ContactPatch patch =
+      hrt::synth::make_patch(n, Vec3(1, 0.2, 0), Vec3(1e-4, -2e-4, 0), lam / 40, 50, {}, B.face_tris);
   const int N = patch.window.resolution;
   std::vector<double> h(static_cast<size_t>(N) * N);
   hrt::rasterize_heights(B.model, Eigen::Isometry3d::Identity(), B.face_tris, patch.n, patch.u, patch.v, patch.window,
@@ -39,8 +39,8 @@ Column compare(const hrt::synth::SynthBlock& B, const Vec3& n, hrt::HeightMode m
       const double hk = h[static_cast<size_t>(j) * N + i];
       if (!std::isfinite(hk)) continue;
       ++out.covered;
-      const Vec3 X = patch.window.origin + (i + 0.5) * patch.window.cell * patch.u +
-                     (j + 0.5) * patch.window.cell * patch.v;
+      const Vec3 X =
+          patch.window.origin + (i + 0.5) * patch.window.cell * patch.u + (j + 0.5) * patch.window.cell * patch.v;
       // The column X + t n meets the face where g(t) = p_z - z(p_x, p_y) = 0;
       // g' = n_z - grad z . n_xy < 0 here (checked by the bracket), so
       // bisection finds the one root; heights are relative to n . origin and

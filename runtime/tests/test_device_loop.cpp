@@ -26,6 +26,8 @@
 
 namespace {
 
+using Eigen::AngleAxisd;
+using Eigen::Quaterniond;
 using hrt::DeviceCommand;
 using hrt::DeviceInfo;
 using hrt::DeviceLoop;
@@ -37,8 +39,6 @@ using hrt::Pose;
 using hrt::Vec3;
 using hrt::Vec6;
 using hrt::WorkspaceMap;
-using Eigen::AngleAxisd;
-using Eigen::Quaterniond;
 
 const double kPi = 3.14159265358979323846;
 double deg(double d) { return d * kPi / 180.0; }
@@ -73,9 +73,9 @@ class TestDevice : public hrt::Device {
     if (written.size() < written.capacity()) written.push_back(w);
   }
 
-  DeviceInfo info_;        // defaults: 10 N, 0.5 N m, 6 DoF
-  DeviceSample sample;     // what read() returns
-  bool ok = true;          // false: read() fails
+  DeviceInfo info_;     // defaults: 10 N, 0.5 N m, 6 DoF
+  DeviceSample sample;  // what read() returns
+  bool ok = true;       // false: read() fails
   Vec6 last = Vec6::Zero();
   size_t writes = 0;
   std::vector<Vec6> written;
@@ -124,8 +124,8 @@ DeviceLoopOptions plain() {
 ::testing::AssertionResult vec_near(const Vec6& a, const Vec6& b, double tol) {
   const double err = (a - b).cwiseAbs().maxCoeff();
   if (err <= tol) return ::testing::AssertionSuccess();
-  return ::testing::AssertionFailure() << "off by " << err << " > " << tol << "\n got  " << a.transpose()
-                                       << "\n want " << b.transpose();
+  return ::testing::AssertionFailure() << "off by " << err << " > " << tol << "\n got  " << a.transpose() << "\n want "
+                                       << b.transpose();
 }
 #define EXPECT_VEC_NEAR(a, b, tol) EXPECT_TRUE(vec_near((a), (b), (tol)))
 
@@ -163,8 +163,8 @@ TEST(WorkspaceMap, ScaleOffsetAndGraspAgainstPosesComputedByHand) {
   const Quaterniond q_dev(AngleAxisd(deg(20), Vec3::UnitY()));
   const Pose dev = pose(Vec3(-0.04, 0.015, 0.07), q_dev);
   const Pose t2 = m.to_scene(dev);
-  const Quaterniond want_q = Quaterniond(AngleAxisd(deg(30), Vec3::UnitZ())) * q_dev *
-                             Quaterniond(AngleAxisd(deg(-90), Vec3::UnitX()));
+  const Quaterniond want_q =
+      Quaterniond(AngleAxisd(deg(30), Vec3::UnitZ())) * q_dev * Quaterniond(AngleAxisd(deg(-90), Vec3::UnitX()));
   EXPECT_NEAR(std::abs(t2.rotation.dot(want_q)), 1.0, 1e-12);
   const Vec3 p_handle = t2.position + t2.rotation * m.grasp.position;
   const Quaterniond q_handle = t2.rotation * m.grasp.rotation;
@@ -636,7 +636,8 @@ TEST(DeviceLoop, TickAllocatesNothing) {
   DeviceTarget t;
   auto period = [&](long i) {
     const double a = 1e-3 * static_cast<double>(i);
-    rig.dev.sample.pose = pose(0.01 * Vec3(std::sin(a), std::cos(a), 0), Quaterniond(AngleAxisd(0.3 * a, Vec3::UnitZ())));
+    rig.dev.sample.pose =
+        pose(0.01 * Vec3(std::sin(a), std::cos(a), 0), Quaterniond(AngleAxisd(0.3 * a, Vec3::UnitZ())));
     rig.dev.sample.clutch = (i / 150) % 3 == 2;
     rig.dev.ok = i % 97 != 5;
     const bool stalled = i >= 600 && i < 720;
@@ -739,7 +740,8 @@ TEST(DeviceLoop, ThreadModeRunsAtAboutThePeriodAndStopsAtZero) {
   // zero) step by at most 1 N / 10 (the rate limit alone would allow 1 N).
   ASSERT_GE(dev.written.size(), 12u);
   for (size_t k = dev.written.size() - 11; k < dev.written.size(); ++k)
-    EXPECT_LE((dev.written[k] - dev.written[k - 1]).norm(), 0.1 + 1e-9) << "write " << k << " of " << dev.written.size();
+    EXPECT_LE((dev.written[k] - dev.written[k - 1]).norm(), 0.1 + 1e-9)
+        << "write " << k << " of " << dev.written.size();
   const hrt::JitterSummary j = hrt::summarize_jitter(st);
   EXPECT_EQ(j.samples, st.ticks);
   EXPECT_LE(j.p50, j.p99);
@@ -897,8 +899,8 @@ TEST(DeviceLoop, TheClampNeverExceedsTheLimitByRounding) {
     const double z = 2 * uniform() - 1, phi = 2 * kPi * uniform(), r = std::sqrt(1 - z * z);
     const double mag = 5.0 * std::pow(2e5, uniform());
     const Vec3 d(r * std::cos(phi), r * std::sin(phi), z);
-    rig.loop->publish(command(vec6(mag * d[0], mag * d[1], mag * d[2], 0.3 * mag * d[1], 0.3 * mag * d[2],
-                                   0.3 * mag * d[0])));
+    rig.loop->publish(
+        command(vec6(mag * d[0], mag * d[1], mag * d[2], 0.3 * mag * d[1], 0.3 * mag * d[2], 0.3 * mag * d[0])));
     const Vec6 out = rig.tick(i);
     worst_f = std::max(worst_f, worst_norm(out.head<3>()));
     worst_t = std::max(worst_t, worst_norm(out.tail<3>()));

@@ -125,9 +125,10 @@ TEST(Dynamics, StiffContactStaysStableAtTenTimesTheSymplecticLimit) {
   ASSERT_EQ(st.num_patches, 1);
   const hrt::Vec6 fc = hrt::coupling_wrench(body, c, s, in.target);
   const double delta_final = st.patches[0].delta;
-  std::printf("stiff contact: k = %.3g N/m = 10 x 4 m / h^2; at rest delta %.4g um (equilibrium %.4g um), "
-              "contact %.5g N vs coupling %.5g N, worst |depth| %.4g um\n",
-              k, delta_final * 1e6, delta_eq * 1e6, st.force.z(), fc[2], worst * 1e6);
+  std::printf(
+      "stiff contact: k = %.3g N/m = 10 x 4 m / h^2; at rest delta %.4g um (equilibrium %.4g um), "
+      "contact %.5g N vs coupling %.5g N, worst |depth| %.4g um\n",
+      k, delta_final * 1e6, delta_eq * 1e6, st.force.z(), fc[2], worst * 1e6);
   // Bounded: never deeper than the first approach's overshoot allows (the
   // whole offset), settled (velocity below 1 um/s), and in balance to 0.1 %.
   EXPECT_LT(worst, offset);

@@ -53,8 +53,7 @@ EnergyScene make_scene(std::mt19937& rng, double s_over_lambda, double bump) {
   const Vec3 m(std::cos(phi), std::sin(phi), 0);
   S.pa = synth::make_pose(Vec3(0, 0, 0.5 * a) + s_over_lambda * lam * m);
   S.pb = synth::make_pose(Vec3::Zero());
-  S.patch = synth::make_patch(Vec3(0, 0, -1), Vec3::UnitX(), Vec3::Zero(), lam / 40, 50, S.A.face_tris,
-                              S.B.face_tris);
+  S.patch = synth::make_patch(Vec3(0, 0, -1), Vec3::UnitX(), Vec3::Zero(), lam / 40, 50, S.A.face_tris, S.B.face_tris);
   Eigen::Isometry3d Q = Eigen::Isometry3d::Identity();
   Q.linear() = random_quat(rng).toRotationMatrix();
   Q.translation() = Vec3(0.01, -0.02, 0.03);

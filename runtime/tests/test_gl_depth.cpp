@@ -46,8 +46,9 @@ double max_atlas_radius(const hrt::Model& m) {
   double r = 0;
   for (size_t k = 0; k + 3 < m.atlas.rgba.size(); k += 4)
     if (m.atlas.rgba[k + 3] > 0)
-      r = std::max(r, std::sqrt(double(m.atlas.rgba[k]) * m.atlas.rgba[k] + double(m.atlas.rgba[k + 1]) * m.atlas.rgba[k + 1] +
-                                double(m.atlas.rgba[k + 2]) * m.atlas.rgba[k + 2]));
+      r = std::max(
+          r, std::sqrt(double(m.atlas.rgba[k]) * m.atlas.rgba[k] + double(m.atlas.rgba[k + 1]) * m.atlas.rgba[k + 1] +
+                       double(m.atlas.rgba[k + 2]) * m.atlas.rgba[k + 2]));
   return r;
 }
 
@@ -87,7 +88,8 @@ std::vector<Frame> contact_frames(const hrt::Model& A, const hrt::Model& B, cons
     if (st.num_patches == 0) continue;
     Frame fr;
     fr.patches.assign(st.patches.begin(), st.patches.begin() + st.num_patches);
-    for (const hrt::ContactPatch& p : fr.patches) fr.jobs.push_back(hrt::DepthJob{&A, &B, st.poses[0], st.poses[1], nullptr});
+    for (const hrt::ContactPatch& p : fr.patches)
+      fr.jobs.push_back(hrt::DepthJob{&A, &B, st.poses[0], st.poses[1], nullptr});
     for (size_t k = 0; k < fr.jobs.size(); ++k) fr.jobs[k].patch = &fr.patches[k];
     out.push_back(std::move(fr));
   }
@@ -143,7 +145,8 @@ struct Golden {
   hrt::Model a, b;
   double bound;
   Golden(const char* na, const char* nb)
-      : a(hrt::load_bundle(golden(na))), b(hrt::load_bundle(golden(nb))),
+      : a(hrt::load_bundle(golden(na))),
+        b(hrt::load_bundle(golden(nb))),
         bound(kHeightUlps * std::ldexp(1.0, -24) * (max_atlas_radius(a) + max_atlas_radius(b))) {}
 };
 
@@ -164,9 +167,11 @@ TEST_F(GlFixture, ComputeReductionEqualsCpuOnGoldenBundlesAtRandomPoses) {
   ASSERT_GE(frames.size(), 12u);
   hrt::gl::GlDepthBackend gl(*ctx, {&A, &B});
   const double bound = g.bound;
-  const Compare r = compare_frames(frames, gl, so.force, [&](int, const hrt::Model&, const hrt::Model&) { return bound; });
-  std::printf("compute: %d patches, %d configurations covered by both, worst |gl - cpu| %.3g m (%.3g of the bound %.3g)\n",
-              r.patches, r.covered_both, r.worst, r.worst_ratio, bound);
+  const Compare r =
+      compare_frames(frames, gl, so.force, [&](int, const hrt::Model&, const hrt::Model&) { return bound; });
+  std::printf(
+      "compute: %d patches, %d configurations covered by both, worst |gl - cpu| %.3g m (%.3g of the bound %.3g)\n",
+      r.patches, r.covered_both, r.worst, r.worst_ratio, bound);
   EXPECT_GT(r.covered_both, 100);
 }
 
@@ -183,15 +188,13 @@ int surface_path_triangles(const std::vector<Frame>& frames, const hrt::ForceOpt
         const hrt::Model& M = side ? *j.b : *j.a;
         const hrt::Pose& pose = side ? j.pose_b : j.pose_a;
         if (!M.surface.ready) continue;
-        const hrt::PlacementParams pp =
-            hrt::placement_params(M, pose.iso(), p.n, p.u, p.v, p.window, 0, opt.heights);
+        const hrt::PlacementParams pp = hrt::placement_params(M, pose.iso(), p.n, p.u, p.v, p.window, 0, opt.heights);
         for (uint32_t f : side ? p.tris_b : p.tris_a)
           if (pp.surface && M.surface.lateral_bound(f, pp.nobj) / p.window.cell > pp.tol) ++n;
       }
     }
   return n;
 }
-
 
 }  // namespace
 
@@ -214,10 +217,10 @@ TEST_F(GlFixture, OcclusionSearchWithinOneDepthQuantum) {
       worst_q = std::max(worst_q, q);
       return q + hb;
     });
-    std::printf("occlusion, %d steps: %d configurations, worst |gl - cpu| %.3g m (%.3g of the bound), largest quantum %.3g m, "
-                "%d queries in the last frame, %d round trip(s)\n",
-                steps, r.covered_both, r.worst, r.worst_ratio, worst_q, gl.stats().occlusion_queries,
-                gl.stats().round_trips);
+    std::printf(
+        "occlusion, %d steps: %d configurations, worst |gl - cpu| %.3g m (%.3g of the bound), largest quantum %.3g m, "
+        "%d queries in the last frame, %d round trip(s)\n",
+        steps, r.covered_both, r.worst, r.worst_ratio, worst_q, gl.stats().occlusion_queries, gl.stats().round_trips);
     EXPECT_EQ(gl.stats().round_trips, 1);
     EXPECT_GT(r.covered_both, 50);
   }
@@ -267,9 +270,10 @@ TEST_F(GlFixture, SurfacePathIsExercisedAndEqualsCpu) {
   const int fixed_point = surface_path_triangles(frames, so.force);
   hrt::gl::GlDepthBackend gl(*ctx, {&A, &B});
   const double bound = g.bound;
-  const Compare r = compare_frames(frames, gl, so.force, [&](int, const hrt::Model&, const hrt::Model&) { return bound; });
-  std::printf("surface path: %d triangles on the fixed point, %d configurations, worst %.3g m (bound %.3g)\n", fixed_point,
-              r.covered_both, r.worst, bound);
+  const Compare r =
+      compare_frames(frames, gl, so.force, [&](int, const hrt::Model&, const hrt::Model&) { return bound; });
+  std::printf("surface path: %d triangles on the fixed point, %d configurations, worst %.3g m (bound %.3g)\n",
+              fixed_point, r.covered_both, r.worst, bound);
   EXPECT_GT(fixed_point, 0);
 }
 
@@ -278,13 +282,14 @@ TEST_F(GlFixture, MeshHeightsEqualCpu) {
   // (mesh.vert / mesh.geom / mesh.frag), against raster_triangle_mesh; the
   // whole-texel translations are shifts of A0 on both. Same bound: the quad
   // corners are the same float32 atlas texels, projected in double.
-  for (const auto& names : {std::pair{"pebble.hbundle", "bumpy_blob.hbundle"},
-                            std::pair{"bumpy_blob.hbundle", "ridged_box.hbundle"}}) {
+  for (const auto& names :
+       {std::pair{"pebble.hbundle", "bumpy_blob.hbundle"}, std::pair{"bumpy_blob.hbundle", "ridged_box.hbundle"}}) {
     const ModeRun m = compare_mode(*ctx, names.first, names.second, hrt::HeightMode::mesh, 8, 13, 4);
-    std::printf("mesh heights, %s on %s: %d patches, %d configurations, worst %.3g m (bound %.3g), %lld quads in "
-                "the last frame\n",
-                names.first, names.second, m.r.patches, m.r.covered_both, m.r.worst, m.bound,
-                static_cast<long long>(m.stats.mesh_quads));
+    std::printf(
+        "mesh heights, %s on %s: %d patches, %d configurations, worst %.3g m (bound %.3g), %lld quads in "
+        "the last frame\n",
+        names.first, names.second, m.r.patches, m.r.covered_both, m.r.worst, m.bound,
+        static_cast<long long>(m.stats.mesh_quads));
     EXPECT_GT(m.r.covered_both, 30);
     // Drawn by the mesh program, not the face raster.
     EXPECT_GT(m.stats.mesh_quads, 1000);
@@ -335,8 +340,8 @@ TEST_F(GlFixture, ManyPatchesInOneFrameEqualOneAtATime) {
       }
       EXPECT_EQ(all[k].region_texels, one[0].region_texels);
     }
-    std::printf("tiling, %d x %d target: %d patches in %d batch(es), %d configurations equal to one-at-a-time\n", target,
-                target, n, batches, compared);
+    std::printf("tiling, %d x %d target: %d patches in %d batch(es), %d configurations equal to one-at-a-time\n",
+                target, target, n, batches, compared);
     if (target == 256) EXPECT_GT(batches, 1);
     EXPECT_GT(compared, 5 * n);
   }

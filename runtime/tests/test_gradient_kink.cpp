@@ -231,9 +231,10 @@ TEST(GradientKink, NestedGratingsWithinOneTexelOfTheKink) {
   }
   // Not vacuous: Eq. 7's central difference is far off at these offsets.
   EXPECT_GT(worst_central, 0.5);
-  std::printf("nested gratings within one texel of the kink: worst |grad - closed form| %.3f of 2 a pi / lambda "
-              "(central differences: %.3f)\n",
-              worst_new, worst_central);
+  std::printf(
+      "nested gratings within one texel of the kink: worst |grad - closed form| %.3f of 2 a pi / lambda "
+      "(central differences: %.3f)\n",
+      worst_new, worst_central);
 }
 
 }  // namespace

@@ -27,7 +27,7 @@ namespace {
 struct Case {
   std::string name;
   std::function<void(BundleContent&, ExrOptions&)> before;  // edit the content before writing
-  std::function<void(const std::string& dir)> after;       // edit the files after writing
+  std::function<void(const std::string& dir)> after;        // edit the files after writing
   bool rehash;                                              // recompute hashes after `after`
   BundleErrorClass cls;
   std::string fragment;
@@ -66,7 +66,9 @@ float* texel(BundleContent& b, int i, int j) { return &b.rgba[(static_cast<size_
 size_t piece_vertex_offset(const std::string& dir, size_t i) {
   return body_offset(read_bytes(dir + "/pieces.ply")) + 16 * i;
 }
-size_t piece_list_offset(const std::string& dir) { return body_offset(read_bytes(dir + "/pieces.ply")) + 16 * 16 + 24 * 17; }
+size_t piece_list_offset(const std::string& dir) {
+  return body_offset(read_bytes(dir + "/pieces.ply")) + 16 * 16 + 24 * 17;
+}
 
 std::vector<Case> cases() {
   using C = BundleErrorClass;
@@ -412,7 +414,8 @@ TEST_P(Corruption, IsRejectedWithItsClassAndMessage) {
   }
   try {
     hrt::load_bundle(dir);
-    ADD_FAILURE() << c.name << ": loaded, expected a " << hrt::to_string(c.cls) << " error containing '" << c.fragment << "'";
+    ADD_FAILURE() << c.name << ": loaded, expected a " << hrt::to_string(c.cls) << " error containing '" << c.fragment
+                  << "'";
   } catch (const BundleError& err) {
     EXPECT_EQ(hrt::to_string(err.error_class()), std::string(hrt::to_string(c.cls))) << err.what();
     EXPECT_NE(std::string(err.what()).find(c.fragment), std::string::npos)
@@ -449,15 +452,15 @@ TEST(IoCorruption, MissingOrNonDirectoryBundle) {
 TEST(IoCorruption, InvariantChecksCanBeSkippedButIndexChecksCannot) {
   const std::string dir = fresh_dir("invariants_off");
   BundleContent b = make_cube();
-  b.uvs[7][3] = 1.25f;                 // a value check
-  texel(b, 12, 12)[3] = 0.5f;          // a value check
+  b.uvs[7][3] = 1.25f;         // a value check
+  texel(b, 12, 12)[3] = 0.5f;  // a value check
   write_bundle(dir, b);
   hrt::LoadOptions off;
   off.check_invariants = false;
   EXPECT_NO_THROW(hrt::load_bundle(dir, off));
   EXPECT_THROW(hrt::load_bundle(dir), BundleError);
   b = make_cube();
-  b.piece_map[0].push_back(40);        // an index check: always on
+  b.piece_map[0].push_back(40);  // an index check: always on
   write_bundle(dir, b);
   EXPECT_THROW(hrt::load_bundle(dir, off), BundleError);
   remove_tree(dir);

@@ -29,8 +29,8 @@ struct Stats {
 };
 
 // Mutates `file` of the bundle in `work` (a copy of `base`) `iterations` times.
-void fuzz_file(const std::string& base, const std::string& work, const std::string& file, int iterations, std::mt19937& rng,
-               Stats& stats) {
+void fuzz_file(const std::string& base, const std::string& work, const std::string& file, int iterations,
+               std::mt19937& rng, Stats& stats) {
   const std::string original = read_bytes(base + "/" + file);
   ASSERT_FALSE(original.empty());
   hrt::LoadOptions opts;
@@ -65,7 +65,8 @@ void fuzz_file(const std::string& base, const std::string& work, const std::stri
       EXPECT_EQ(what.rfind(work, 0), 0u) << what;
       EXPECT_EQ(what.find('\n'), std::string::npos) << what;
     } catch (const std::exception& e) {
-      ADD_FAILURE() << file << " iteration " << it << ": " << typeid(e).name() << " instead of BundleError: " << e.what();
+      ADD_FAILURE() << file << " iteration " << it << ": " << typeid(e).name()
+                    << " instead of BundleError: " << e.what();
     }
     const double dt = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     EXPECT_LT(dt, kMaxSecondsPerLoad) << file << " iteration " << it;
@@ -93,8 +94,8 @@ void fuzz_bundle(const std::string& base, const std::string& tag, int per_file) 
   for (const char* file : {"manifest.json", "coarse.ply", "atlas.exr", "pieces.ply"}) {
     Stats stats;
     fuzz_file(base, work, file, per_file, rng, stats);
-    std::printf("fuzz %s %-14s %3d mutations: %3d rejected, %3d still valid\n", tag.c_str(), file, per_file, stats.rejected,
-                stats.loaded);
+    std::printf("fuzz %s %-14s %3d mutations: %3d rejected, %3d still valid\n", tag.c_str(), file, per_file,
+                stats.rejected, stats.loaded);
     EXPECT_GT(stats.rejected, per_file / 4) << "most mutations of " << file << " should be caught";
   }
   remove_tree(work);
@@ -120,7 +121,8 @@ TEST(IoFuzz, GoldenBundleSurvivesByteFlipsAndTruncations) {
       if (size < best_size) best_size = size, best = e.path().string();
     }
   }
-  if (best.empty()) GTEST_FAIL() << "no golden bundle in " << golden_dir() << " (tests/golden/make_golden.py writes them)";
+  if (best.empty())
+    GTEST_FAIL() << "no golden bundle in " << golden_dir() << " (tests/golden/make_golden.py writes them)";
   fuzz_bundle(best, "golden", 40);
 }
 

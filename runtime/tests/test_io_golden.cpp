@@ -44,11 +44,14 @@ std::vector<fs::path> golden_bundles() {
   return out;
 }
 
-Eigen::Vector3d vec3(const json& j) { return Eigen::Vector3d(j.at(0).get<double>(), j.at(1).get<double>(), j.at(2).get<double>()); }
+Eigen::Vector3d vec3(const json& j) {
+  return Eigen::Vector3d(j.at(0).get<double>(), j.at(1).get<double>(), j.at(2).get<double>());
+}
 
 TEST(IoGolden, EveryBundleLoadsAndMatchesItsExpectedValues) {
   const auto bundles = golden_bundles();
-  if (bundles.empty()) GTEST_FAIL() << "no golden bundles in " << golden_dir() << " (tests/golden/make_golden.py writes them)";
+  if (bundles.empty())
+    GTEST_FAIL() << "no golden bundles in " << golden_dir() << " (tests/golden/make_golden.py writes them)";
   for (const fs::path& path : bundles) {
     SCOPED_TRACE(path.string());
     hrt::Model m;
@@ -70,7 +73,8 @@ TEST(IoGolden, EveryBundleLoadsAndMatchesItsExpectedValues) {
     // The piece -> coarse-triangle map, as hbake's reader reads it (both layouts).
     ASSERT_EQ(exp["pieces"]["coarse_faces"].size(), m.pieces.size());
     for (size_t p = 0; p < m.pieces.size(); ++p)
-      EXPECT_EQ(m.pieces[p].coarse_faces, exp["pieces"]["coarse_faces"][p].get<std::vector<uint32_t>>()) << "piece " << p;
+      EXPECT_EQ(m.pieces[p].coarse_faces, exp["pieces"]["coarse_faces"][p].get<std::vector<uint32_t>>())
+          << "piece " << p;
     const double file_tol = exp["tolerance"]["position"].get<double>();
     const int W = m.atlas.width, H = m.atlas.height;
 
@@ -80,7 +84,8 @@ TEST(IoGolden, EveryBundleLoadsAndMatchesItsExpectedValues) {
       const int i = t["i"], j = t["j"];
       const float* got = m.atlas.texel(i, j);
       for (int c = 0; c < 4; ++c) {
-        EXPECT_EQ(got[c], static_cast<float>(t["rgba"][c].get<double>())) << "texel (" << i << ", " << j << ") channel " << c;
+        EXPECT_EQ(got[c], static_cast<float>(t["rgba"][c].get<double>()))
+            << "texel (" << i << ", " << j << ") channel " << c;
       }
     }
 
@@ -113,9 +118,10 @@ TEST(IoGolden, EveryBundleLoadsAndMatchesItsExpectedValues) {
         }
       }
     }
-    std::printf("%s: %zu lookups, worst |sample4 - expected| = %.3g m on RGB (float32 bound up to %.3g m, file tolerance "
-                "%.3g m), %.3g on A\n",
-                path.filename().c_str(), exp["lookups"].size(), worst, worst_bound, file_tol, worst_a);
+    std::printf(
+        "%s: %zu lookups, worst |sample4 - expected| = %.3g m on RGB (float32 bound up to %.3g m, file tolerance "
+        "%.3g m), %.3g on A\n",
+        path.filename().c_str(), exp["lookups"].size(), worst, worst_bound, file_tol, worst_a);
 
     // Surface samples: triangle + barycentrics -> uv -> atlas position, height.
     ASSERT_FALSE(exp["surface_samples"].empty());

@@ -65,7 +65,8 @@ TEST_F(CubeBundle, LoadsEveryField) {
   const double a = cube_side();
   for (size_t f = 0; f < 12; ++f) {
     // Outward unit normals along an axis, area a^2 / 2 (float32 corners: 1e-6 relative).
-    const hrt::Vec3 centroid = (m.vertices[m.faces[f][0]] + m.vertices[m.faces[f][1]] + m.vertices[m.faces[f][2]]) / 3.0;
+    const hrt::Vec3 centroid =
+        (m.vertices[m.faces[f][0]] + m.vertices[m.faces[f][1]] + m.vertices[m.faces[f][2]]) / 3.0;
     EXPECT_NEAR(m.face_normals[f].norm(), 1.0, 1e-12);
     EXPECT_GT(m.face_normals[f].dot(centroid - c), 0.3 * a) << "face " << f << " normal points inward";
     EXPECT_NEAR(m.face_normals[f].cwiseAbs().maxCoeff(), 1.0, 1e-6);
@@ -143,7 +144,8 @@ TEST_F(CubeBundle, SurfaceSamplesReturnTheSurfacePoint) {
     const double b0 = 1 - b1 - b2;
     const auto& t = m.faces[f];
     const hrt::Vec3 p = b0 * m.vertices[t[0]] + b1 * m.vertices[t[1]] + b2 * m.vertices[t[2]];
-    const Eigen::Vector2d uv = b0 * m.uvs[f][0].cast<double>() + b1 * m.uvs[f][1].cast<double>() + b2 * m.uvs[f][2].cast<double>();
+    const Eigen::Vector2d uv =
+        b0 * m.uvs[f][0].cast<double>() + b1 * m.uvs[f][1].cast<double>() + b2 * m.uvs[f][2].cast<double>();
     const Eigen::Vector4f s4 = m.atlas.sample4(static_cast<float>(uv.x()), static_cast<float>(uv.y()));
     const Eigen::Vector3f s3 = m.atlas.sample(static_cast<float>(uv.x()), static_cast<float>(uv.y()));
     EXPECT_EQ(s3, s4.head<3>());

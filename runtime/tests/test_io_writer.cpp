@@ -70,7 +70,8 @@ std::array<float, 3> corner(const hrt::Vec3& lo, const hrt::Vec3& hi, int bits) 
           static_cast<float>(bits & 4 ? hi.z() : lo.z())};
 }
 
-void box(const hrt::Vec3& lo, const hrt::Vec3& hi, std::vector<std::array<float, 3>>& verts, std::vector<hrt::Tri>& faces) {
+void box(const hrt::Vec3& lo, const hrt::Vec3& hi, std::vector<std::array<float, 3>>& verts,
+         std::vector<hrt::Tri>& faces) {
   verts.clear();
   faces.clear();
   for (int b = 0; b < 8; ++b) verts.push_back(corner(lo, hi, b));
@@ -163,10 +164,12 @@ std::string pieces_ply_bytes(const BundleContent& b) {
   return s;
 }
 
-void write_atlas_exr(const std::string& path, int width, int height, const std::vector<float>& rgba, const ExrOptions& opt) {
+void write_atlas_exr(const std::string& path, int width, int height, const std::vector<float>& rgba,
+                     const ExrOptions& opt) {
   Imf::Header header(width, height);
   header.compression() = compression_of(opt.compression);
-  header.dataWindow() = Imath::Box2i(Imath::V2i(opt.data_offset_x, 0), Imath::V2i(width - 1 + opt.data_offset_x, height - 1));
+  header.dataWindow() =
+      Imath::Box2i(Imath::V2i(opt.data_offset_x, 0), Imath::V2i(width - 1 + opt.data_offset_x, height - 1));
   const Imf::PixelType type = opt.half ? Imf::HALF : Imf::FLOAT;
   for (char c : opt.channels) header.channels().insert(std::string(1, c), Imf::Channel(type));
   Imf::FrameBuffer fb;
@@ -176,7 +179,8 @@ void write_atlas_exr(const std::string& path, int width, int height, const std::
   const size_t elem = opt.half ? sizeof(half) : sizeof(float);
   const size_t xs = 4 * elem, ys = xs * static_cast<size_t>(width);
   // Slice base so that pixel (dx, 0) of the data window is element 0.
-  char* data = opt.half ? reinterpret_cast<char*>(halves.data()) : reinterpret_cast<char*>(const_cast<float*>(rgba.data()));
+  char* data =
+      opt.half ? reinterpret_cast<char*>(halves.data()) : reinterpret_cast<char*>(const_cast<float*>(rgba.data()));
   char* base = data - static_cast<ptrdiff_t>(opt.data_offset_x) * xs;
   for (char c : opt.channels) {
     const int k = c == 'R' ? 0 : c == 'G' ? 1 : c == 'B' ? 2 : 3;
@@ -247,7 +251,8 @@ BundleContent make_cube() {
     const std::array<float, 2> st[4] = {uv(0, 0), uv(1, 0), uv(1, 1), uv(0, 1)};
     const int tris[2][3] = {{0, 1, 2}, {0, 2, 3}};
     for (const auto& t : tris) {
-      b.faces.push_back({static_cast<uint32_t>(l[t[0]]), static_cast<uint32_t>(l[t[1]]), static_cast<uint32_t>(l[t[2]])});
+      b.faces.push_back(
+          {static_cast<uint32_t>(l[t[0]]), static_cast<uint32_t>(l[t[1]]), static_cast<uint32_t>(l[t[2]])});
       b.uvs.push_back({st[t[0]][0], st[t[0]][1], st[t[1]][0], st[t[1]][1], st[t[2]][0], st[t[2]][1]});
     }
     // Affine position map of the chart, written into the covered texels and
@@ -281,26 +286,52 @@ BundleContent make_cube() {
   const double volume = kSide * kSide * kSide, density = 1.0, mass = density * volume;
   const double I = mass * kSide * kSide / 6.0;
   const double diag = std::sqrt(3.0) * kSide;
-  const nlohmann::json rec = {{"samples", 1000}, {"mean", 0.0}, {"p95", 0.0}, {"max", 0.0},
+  const nlohmann::json rec = {{"samples", 1000}, {"mean", 0.0},    {"p95", 0.0},    {"max", 0.0},
                               {"mean_rel", 0.0}, {"p95_rel", 0.0}, {"max_rel", 0.0}};
   b.manifest = {
       {"format", "hbundle"},
       {"format_version", "1.0"},
       {"generator", {{"name", "hbake"}, {"version", "0.0.0+hrt-test-writer"}}},
       {"units", {{"length", "m"}, {"source_unit", "m"}, {"scale_to_meters", 1.0}}},
-      {"source", {{"name", "cube.ply"}, {"sha256", std::string(64, '0')}, {"vertices", 8}, {"triangles", 12}, {"bodies", 1}, {"closed", true}}},
+      {"source",
+       {{"name", "cube.ply"},
+        {"sha256", std::string(64, '0')},
+        {"vertices", 8},
+        {"triangles", 12},
+        {"bodies", 1},
+        {"closed", true}}},
       {"method", "cage"},
       {"settings", nlohmann::json::object()},
       {"seeds", {{"coacd", 0}, {"quality", 0}}},
       {"libraries", {{"OpenEXR", "3.1"}}},
-      {"coarse", {{"vertices", 8}, {"triangles", 12}, {"bbox_min", {lo.x(), lo.y(), lo.z()}}, {"bbox_max", {hi.x(), hi.y(), hi.z()}}, {"area", 6 * kSide * kSide}}},
+      {"coarse",
+       {{"vertices", 8},
+        {"triangles", 12},
+        {"bbox_min", {lo.x(), lo.y(), lo.z()}},
+        {"bbox_max", {hi.x(), hi.y(), hi.z()}},
+        {"area", 6 * kSide * kSide}}},
       {"pieces", {{"count", 2}, {"map_tolerance", 1e-6}}},
-      {"atlas", {{"width", kW}, {"height", kH}, {"gutter", kGutter}, {"texel_size", kSide / kChart}, {"coverage", static_cast<double>(covered) / (kW * kH)}}},
-      {"mass", {{"basis", "full"}, {"density", density}, {"volume", volume}, {"center_of_mass", {c.x(), c.y(), c.z()}},
-                {"inertia", {{I, 0.0, 0.0}, {0.0, I, 0.0}, {0.0, 0.0, I}}}, {"closed", true}}},
-      {"quality", {{"displacement_outward", 0.0}, {"displacement_inward", 0.0}, {"hull_deviation", 0.0}, {"hull_volume_excess", 0.0},
-                   {"min_wavelength", 2 * kSide / kChart}, {"reconstruction", {{"coarse_to_full", rec}, {"full_to_coarse", rec}}},
-                   {"bbox_diagonal", diag}}},
+      {"atlas",
+       {{"width", kW},
+        {"height", kH},
+        {"gutter", kGutter},
+        {"texel_size", kSide / kChart},
+        {"coverage", static_cast<double>(covered) / (kW * kH)}}},
+      {"mass",
+       {{"basis", "full"},
+        {"density", density},
+        {"volume", volume},
+        {"center_of_mass", {c.x(), c.y(), c.z()}},
+        {"inertia", {{I, 0.0, 0.0}, {0.0, I, 0.0}, {0.0, 0.0, I}}},
+        {"closed", true}}},
+      {"quality",
+       {{"displacement_outward", 0.0},
+        {"displacement_inward", 0.0},
+        {"hull_deviation", 0.0},
+        {"hull_volume_excess", 0.0},
+        {"min_wavelength", 2 * kSide / kChart},
+        {"reconstruction", {{"coarse_to_full", rec}, {"full_to_coarse", rec}}},
+        {"bbox_diagonal", diag}}},
       {"warnings", nlohmann::json::array()},
   };
   return b;
@@ -310,7 +341,8 @@ double sample_tolerance(int W, int H, double spread, double max_abs) {
   return (2.0 * W + 3.0 * H) * kEps32 * spread + 16.0 * kEps32 * max_abs;
 }
 
-Eigen::Vector4d reference_sample(const hrt::Atlas& a, float u, float v, Eigen::Vector4d* spread, Eigen::Vector4d* max_abs) {
+Eigen::Vector4d reference_sample(const hrt::Atlas& a, float u, float v, Eigen::Vector4d* spread,
+                                 Eigen::Vector4d* max_abs) {
   const double x = static_cast<double>(u) * a.width - 0.5, y = (1.0 - static_cast<double>(v)) * a.height - 0.5;
   const double x0 = std::floor(x), y0 = std::floor(y), fx = x - x0, fy = y - y0;
   auto cl = [](double i, int n) { return static_cast<int>(std::min(std::max(i, 0.0), n - 1.0)); };
@@ -323,7 +355,8 @@ Eigen::Vector4d reference_sample(const hrt::Atlas& a, float u, float v, Eigen::V
     for (int c = 0; c < 4; ++c) {
       out[c] += w[k] * t[c];
       mx[c] = std::max(mx[c], std::fabs(static_cast<double>(t[c])));
-      for (int q = 0; q < 4; ++q) sp[c] = std::max(sp[c], std::fabs(static_cast<double>(t[c]) - a.texel(ii[q], jj[q])[c]));
+      for (int q = 0; q < 4; ++q)
+        sp[c] = std::max(sp[c], std::fabs(static_cast<double>(t[c]) - a.texel(ii[q], jj[q])[c]));
     }
   }
   if (spread) *spread = sp;
@@ -424,7 +457,7 @@ HrtRun run_hrt(const std::vector<std::string>& args, bool capture_stdout) {
       }
     }
     int status = 0;
-    struct rusage ru {};
+    struct rusage ru{};
     ::wait4(pid, &status, 0, &ru);
     r.status = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
     r.max_rss_kb = ru.ru_maxrss;

@@ -20,7 +20,7 @@ struct BundleContent {
   // coarse.ply
   std::vector<std::array<float, 3>> vertices;
   std::vector<hrt::Tri> faces;
-  std::vector<std::array<float, 6>> uvs;  // u0 v0 u1 v1 u2 v2 per face
+  std::vector<std::array<float, 6>> uvs;                           // u0 v0 u1 v1 u2 v2 per face
   std::string coarse_comment = "comment hbundle coarse mesh 1.0";  // "" = no comment line
   // atlas.exr (row 0 = top), RGBA float
   int width = 0, height = 0;
@@ -35,10 +35,10 @@ struct BundleContent {
 
 // How to write atlas.exr (defaults: what the spec requires).
 struct ExrOptions {
-  std::string compression = "zip";     // zip | piz | rle | none | ...
-  std::string channels = "RGBA";       // which channels to write
-  bool half = false;                   // HALF instead of FLOAT pixels
-  int data_offset_x = 0;               // shift of the data window
+  std::string compression = "zip";  // zip | piz | rle | none | ...
+  std::string channels = "RGBA";    // which channels to write
+  bool half = false;                // HALF instead of FLOAT pixels
+  int data_offset_x = 0;            // shift of the data window
   bool tiled = false;
 };
 

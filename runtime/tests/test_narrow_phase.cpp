@@ -52,8 +52,10 @@ std::vector<Poly> load_fixture() {
   std::vector<Poly> out;
   for (const auto& p : j.at("pieces")) {
     Poly poly;
-    for (const auto& x : p.at("vertices")) poly.v.emplace_back(x[0].get<double>(), x[1].get<double>(), x[2].get<double>());
-    for (const auto& t : p.at("faces")) poly.f.push_back(hrt::Tri{t[0].get<uint32_t>(), t[1].get<uint32_t>(), t[2].get<uint32_t>()});
+    for (const auto& x : p.at("vertices"))
+      poly.v.emplace_back(x[0].get<double>(), x[1].get<double>(), x[2].get<double>());
+    for (const auto& t : p.at("faces"))
+      poly.f.push_back(hrt::Tri{t[0].get<uint32_t>(), t[1].get<uint32_t>(), t[2].get<uint32_t>()});
     out.push_back(poly);
   }
   return out;
@@ -167,8 +169,8 @@ double max_outside(const Poly& p, const Eigen::Isometry3d& tf, const Vec3& x) {
 // FCL 0.7's signed distance (GST_LIBCCD: GJK + its libccd-extension EPA),
 // the runtime's narrow phase before this change, as a second reference. It
 // runs in a child process because its EPA may abort; false when it did.
-bool fcl_signed_distance(const fcl::Convexd& a, const Eigen::Isometry3d& b_from_a, const fcl::Convexd& b,
-                         double tol, double& d) {
+bool fcl_signed_distance(const fcl::Convexd& a, const Eigen::Isometry3d& b_from_a, const fcl::Convexd& b, double tol,
+                         double& d) {
   int fd[2];
   if (pipe(fd) != 0) return false;
   const pid_t pid = fork();
@@ -368,9 +370,9 @@ TEST(NarrowPhase, AgreesWithSeparatingAxesOnBakedPieces) {
 // plane test.
 TEST(NarrowPhase, AdjacencyFromTheTriangleMapAndCutFaces) {
   {
-    hrt::Model m = hrt_test::make_boxes({hrt_test::Box{Vec3(0, 0, 0), Vec3(0.01, 0.01, 0.01)},
-                                         hrt_test::Box{Vec3(0.03, 0, 0), Vec3(0.04, 0.01, 0.01)}},
-                                        "apart");
+    hrt::Model m = hrt_test::make_boxes(
+        {hrt_test::Box{Vec3(0, 0, 0), Vec3(0.01, 0.01, 0.01)}, hrt_test::Box{Vec3(0.03, 0, 0), Vec3(0.04, 0.01, 0.01)}},
+        "apart");
     auto g = hrt::collision::build_geometry(m, false);
     EXPECT_FALSE(g->adjacent(0, 1));
     // Piece 1 also lists face 0 (of box 0): they now share coarse vertices.

@@ -75,14 +75,14 @@ TEST(ParallelFrame, ThreadsGiveTheSerialResultBitForBit) {
   std::vector<hrt::Pose> poses;
   for (int i = 0; i < 8; ++i) {
     const double a = 0.05 * i;
-    poses.push_back(hrt_test::pose_at(hrt::Vec3(0.0225 + 0.0007 * i, 0.001 - 0.0003 * i, 0.0119 - 0.00002 * i),
-                                      Eigen::Quaterniond(Eigen::AngleAxisd(a, hrt::Vec3::UnitZ())) *
-                                          Eigen::Quaterniond(0, 1, 0, 0)));
+    poses.push_back(hrt_test::pose_at(
+        hrt::Vec3(0.0225 + 0.0007 * i, 0.001 - 0.0003 * i, 0.0119 - 0.00002 * i),
+        Eigen::Quaterniond(Eigen::AngleAxisd(a, hrt::Vec3::UnitZ())) * Eigen::Quaterniond(0, 1, 0, 0)));
   }
   for (int i = 0; i < 3; ++i)  // over the first box only: one patch, its configurations shared
-    poses.push_back(hrt_test::pose_at(hrt::Vec3(-0.002 + 0.0011 * i, 0.001, 0.0118),
-                                      Eigen::Quaterniond(Eigen::AngleAxisd(0.2 * i, hrt::Vec3::UnitZ())) *
-                                          Eigen::Quaterniond(0, 1, 0, 0)));
+    poses.push_back(hrt_test::pose_at(
+        hrt::Vec3(-0.002 + 0.0011 * i, 0.001, 0.0118),
+        Eigen::Quaterniond(Eigen::AngleAxisd(0.2 * i, hrt::Vec3::UnitZ())) * Eigen::Quaterniond(0, 1, 0, 0)));
   int most_patches = 0, single_patch_frames = 0;
   for (hrt::HeightMode mode : {hrt::HeightMode::surface, hrt::HeightMode::coarse, hrt::HeightMode::mesh}) {
     for (int threads : {2, 3}) {

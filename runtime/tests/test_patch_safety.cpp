@@ -63,8 +63,8 @@ TEST(PatchSafety, FlatContactsAreNeitherRefusedNorClamped) {
     for (int trial = 0; trial < 4; ++trial) {
       Eigen::Isometry3d G = Eigen::Isometry3d::Identity();
       G.linear() = random_rotation(rng).toRotationMatrix();
-      st.poses[0] = hrt_test::moved(G, pose_at(Vec3(0.013, -0.007, 0.005 - delta0),
-                                               Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Vec3::UnitZ()))));
+      st.poses[0] = hrt_test::moved(
+          G, pose_at(Vec3(0.013, -0.007, 0.005 - delta0), Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Vec3::UnitZ()))));
       st.poses[1] = hrt_test::moved(G, pose_at(Vec3::Zero()));
       const hrt::Warnings before = st.warnings;
       hrt::frame(scene, st);

@@ -68,7 +68,8 @@ TEST(Physics, SlidingParallelToRidgesGivesNoForceAlongThem) {
       Pose pa = synth::make_pose(Vec3(x, s, g)), pb;
       // Window centre snapped to the (u, v) lattice of B's frame.
       const Vec3 vdir = Vec3(0, 0, -1).cross(u);
-      const Vec3 c = std::round(Vec3(x, s, 0).dot(u) / cell) * cell * u + std::round(Vec3(x, s, 0).dot(vdir) / cell) * cell * vdir;
+      const Vec3 c =
+          std::round(Vec3(x, s, 0).dot(u) / cell) * cell * u + std::round(Vec3(x, s, 0).dot(vdir) / cell) * cell * vdir;
       ContactPatch patch = synth::make_patch(Vec3(0, 0, -1), u, c, cell, N, A.face_tris, B.face_tris);
       const Eigen::Isometry3d Q = random_frame(100 + step);
       synth::transform_scene(Q, pa, pb, patch);
@@ -154,8 +155,8 @@ TEST(Physics, RotatingInterlockedStripedBlocksRaisesAndResists) {
         //     k x.(m - Rm)/2 with |m - Rm| = 2 sin(theta/2)); and larger by
         //     k L sin^2(|theta|/2) at the corner itself.
         const double D = closed(th);
-        const double tol = D * (1 - std::cos(kk * cell / 2)) +
-                           2 * a * kk * (lam + L) * std::pow(std::sin(th / 2), 2) + eps_atlas;
+        const double tol =
+            D * (1 - std::cos(kk * cell / 2)) + 2 * a * kk * (lam + L) * std::pow(std::sin(th / 2), 2) + eps_atlas;
         EXPECT_NEAR(patch.delta, D, tol) << deg << " deg, sign " << sgn << " shortcut " << shortcut;
         // Torque about n opposes the rotation (Fig. 8), with the size of
         // -k delta d delta/d theta: the derivative within the same bounds

@@ -79,8 +79,8 @@ TEST(PluginDevice, ReadsPosesBetweenOpenAndClose) {
   EXPECT_NEAR(s.pose.position.x(), 0.0, 1e-15);
   EXPECT_NEAR(s.pose.position.y(), 0.04, 1e-15);
   EXPECT_NEAR(s.pose.position.z(), 0.01, 1e-15);
-  EXPECT_NEAR(s.pose.rotation.angularDistance(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI / 2, hrt::Vec3::UnitZ()))),
-              0.0, 1e-12);
+  EXPECT_NEAR(s.pose.rotation.angularDistance(Eigen::Quaterniond(Eigen::AngleAxisd(M_PI / 2, hrt::Vec3::UnitZ()))), 0.0,
+              1e-12);
   EXPECT_FALSE(s.clutch);
   ASSERT_TRUE(dev.read(1.25, s));
   EXPECT_NEAR(s.pose.position.x(), 0.04 * std::cos(1.25 * M_PI), 1e-15);
@@ -394,7 +394,8 @@ TEST(PluginDevice, TruncatedCopiesAreRefusedBeforeLoading) {
     const std::string msg = load_error(path);
     std::printf("[ message  ] %ld of %ld bytes: %s\n", c.size, full, msg.c_str());
     EXPECT_EQ(msg.rfind("plugin " + path + c.what, 0), 0u) << msg;
-    if (c.size > 64) EXPECT_NE(msg.find(", the file has " + std::to_string(c.size) + " bytes"), std::string::npos) << msg;
+    if (c.size > 64)
+      EXPECT_NE(msg.find(", the file has " + std::to_string(c.size) + " bytes"), std::string::npos) << msg;
     EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
     EXPECT_EQ(dlopen(path.c_str(), RTLD_NOW | RTLD_NOLOAD), nullptr) << "it was loaded";
   }
@@ -420,7 +421,8 @@ TEST(PluginDevice, FilesThatAreNotPluginsAreRefusedBeforeLoading) {
   const std::string other_machine = copy_of_example(dir, "other_machine.so", -1, [](Elf64_Ehdr& h) {
     h.e_machine = h.e_machine == EM_AARCH64 ? EM_X86_64 : EM_AARCH64;
   });
-  const std::string bits32 = copy_of_example(dir, "bits32.so", -1, [](Elf64_Ehdr& h) { h.e_ident[EI_CLASS] = ELFCLASS32; });
+  const std::string bits32 =
+      copy_of_example(dir, "bits32.so", -1, [](Elf64_Ehdr& h) { h.e_ident[EI_CLASS] = ELFCLASS32; });
   const std::string executable = copy_of_example(dir, "executable.so", -1, [](Elf64_Ehdr& h) { h.e_type = ET_EXEC; });
   const struct {
     std::string path, what;

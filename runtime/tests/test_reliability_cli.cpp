@@ -85,7 +85,8 @@ TEST_F(HrtCli, UnknownCommandIsNamed) {
 }
 
 TEST_F(HrtCli, BenchOptionsAreStrict) {
-  const std::vector<std::string> base{"bench", "--a", pebble_, "--b", pebble_, "--pose-a", "0", "0", "0", "0", "0", "0", "1"};
+  const std::vector<std::string> base{"bench", "--a", pebble_, "--b", pebble_, "--pose-a", "0",
+                                      "0",     "0",   "0",     "0",   "0",     "1"};
   auto with = [&](std::vector<std::string> extra) {
     std::vector<std::string> a = base;
     a.insert(a.end(), extra.begin(), extra.end());

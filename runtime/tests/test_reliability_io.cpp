@@ -48,7 +48,7 @@ class Reliability : public ::testing::Test {
     EXPECT_EQ(std::count(c.err.begin(), c.err.end(), '\n'), 1) << c.err;
     // posix_spawn shares the parent's memory until exec, and Linux counts
     // that in the child's peak: the parent's own peak is the baseline.
-    struct rusage self {};
+    struct rusage self{};
     ::getrusage(RUSAGE_SELF, &self);
     EXPECT_LT(c.max_rss_kb, max_rss_mb * 1024 + self.ru_maxrss)
         << "peak RSS " << c.max_rss_kb / 1024 << " MB (this process: " << self.ru_maxrss / 1024 << " MB)";
@@ -179,13 +179,15 @@ ExrHeader walk_header(const std::string& b) {
 std::string insert_attr(const std::string& b, int height, const std::string& name, const std::string& type,
                         const std::string& value, int64_t claimed = -1) {
   const ExrHeader h = walk_header(b);
-  std::string attr = name + '\0' + type + '\0' + u32_bytes(static_cast<uint32_t>(claimed < 0 ? value.size() : claimed)) + value;
+  std::string attr =
+      name + '\0' + type + '\0' + u32_bytes(static_cast<uint32_t>(claimed < 0 ? value.size() : claimed)) + value;
   std::string out = b.substr(0, h.end - 1) + attr + b.substr(h.end - 1);
   const size_t table = h.end + attr.size();
   const int chunks = (height + 15) / 16;  // ZIP: 16 scanlines per chunk
   for (int k = 0; k < chunks; ++k) {
     uint64_t off = 0;
-    for (int i = 0; i < 8; ++i) off |= static_cast<uint64_t>(static_cast<unsigned char>(out[table + 8 * k + i])) << (8 * i);
+    for (int i = 0; i < 8; ++i)
+      off |= static_cast<uint64_t>(static_cast<unsigned char>(out[table + 8 * k + i])) << (8 * i);
     off += attr.size();
     for (int i = 0; i < 8; ++i) out[table + 8 * k + i] = static_cast<char>((off >> (8 * i)) & 0xff);
   }
@@ -223,8 +225,8 @@ TEST_F(Reliability, ExrCountsInsideAttributesBounded) {
   // 20000 x 20000 pixels in 24 bytes, a string vector whose entry claims 1 GB.
   write_bundle(dir_, content_);
   const std::string exr = read_bytes(dir_ + "/atlas.exr");
-  write_bytes(dir_ + "/atlas.exr",
-              insert_attr(exr, content_.height, "preview", "preview", u32_bytes(20000) + u32_bytes(20000) + std::string(16, '\0')));
+  write_bytes(dir_ + "/atlas.exr", insert_attr(exr, content_.height, "preview", "preview",
+                                               u32_bytes(20000) + u32_bytes(20000) + std::string(16, '\0')));
   rehash(dir_);
   expect_refused("atlas", "attribute 'preview' (preview) claims 20000 x 20000 pixels");
   // 2^31 x 2^31 pixels in 8 bytes: w h 4 + 8 wraps to 8 in 64 bits.
@@ -330,8 +332,9 @@ TEST_F(Reliability, AtlasChecksCostTheTrianglesNotTheirBoundingBoxes) {
       ADD_FAILURE();
     } catch (const BundleError& e) {
       EXPECT_EQ(e.error_class(), BundleErrorClass::atlas);
-      EXPECT_NE(std::string(e.what()).find("texel tests (16 per texel of the atlas + 64 per triangle): UV triangles overlap"),
-                std::string::npos)
+      EXPECT_NE(
+          std::string(e.what()).find("texel tests (16 per texel of the atlas + 64 per triangle): UV triangles overlap"),
+          std::string::npos)
           << e.what();
     }
   }
@@ -352,7 +355,8 @@ TEST_F(Reliability, PieceVertexLimit) {
     ADD_FAILURE() << "a piece of 4000 vertices accepted";
   } catch (const BundleError& e) {
     EXPECT_EQ(e.error_class(), BundleErrorClass::pieces);
-    EXPECT_NE(std::string(e.what()).find("piece 1 has 4000 vertices, more than the limit 1024"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("piece 1 has 4000 vertices, more than the limit 1024"), std::string::npos)
+        << e.what();
   }
   // Also without the invariant checks (the limit bounds what later stages get).
   hrt::LoadOptions lo;
@@ -372,7 +376,8 @@ TEST_F(Reliability, PieceFaceLimit) {
     ADD_FAILURE();
   } catch (const BundleError& e) {
     EXPECT_EQ(e.error_class(), BundleErrorClass::pieces);
-    EXPECT_NE(std::string(e.what()).find("piece 0 has 3000 faces, more than the limit 2044"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("piece 0 has 3000 faces, more than the limit 2044"), std::string::npos)
+        << e.what();
   }
 }
 
@@ -397,7 +402,8 @@ TEST_F(Reliability, CoordinatesWithinTheContract) {
   c = content_;
   c.rgba[0] = 1e7f;  // texel (0, 0), R
   write_bundle(dir_, c);
-  expect_refused("atlas", "1 texel with a position farther than 10000 m from the origin along an axis (first: texel (0, 0))");
+  expect_refused("atlas",
+                 "1 texel with a position farther than 10000 m from the origin along an axis (first: texel (0, 0))");
 }
 
 }  // namespace

@@ -146,9 +146,9 @@ TEST(ResolveSimd, UnusableQuadsAreReadAsTheReferenceReadsThem) {
   hrt::Scene scene({&box, &box}, so);
   hrt::State st(scene);
   st.poses[1] = hrt_test::pose_at(hrt::Vec3(0.0, 0, 0));
-  st.poses[0] = hrt_test::pose_at(hrt::Vec3(-0.001, 0.0006, 0.0119),
-                                  Eigen::Quaterniond(Eigen::AngleAxisd(0.27, hrt::Vec3::UnitZ())) *
-                                      Eigen::Quaterniond(0, 1, 0, 0));
+  st.poses[0] = hrt_test::pose_at(
+      hrt::Vec3(-0.001, 0.0006, 0.0119),
+      Eigen::Quaterniond(Eigen::AngleAxisd(0.27, hrt::Vec3::UnitZ())) * Eigen::Quaterniond(0, 1, 0, 0));
   hrt::frame(scene, st);
   std::vector<int64_t> targets;
   for (int64_t bits = hwy::SupportedTargets(); bits != 0; bits &= bits - 1) targets.push_back(bits & -bits);
@@ -196,10 +196,9 @@ TEST(ResolveSimd, FramesEqualTheReferenceBitForBit) {
   hrt::State ref(scene), st(scene);
   int patches = 0;
   for (int f = 0; f < 8; ++f) {
-    const hrt::Pose p =
-        hrt_test::pose_at(hrt::Vec3(-0.002 + 0.0007 * f, 0.001 - 0.0003 * f, 0.0119 - 0.00002 * f),
-                          Eigen::Quaterniond(Eigen::AngleAxisd(0.07 * f, hrt::Vec3::UnitZ())) *
-                              Eigen::Quaterniond(0, 1, 0, 0));
+    const hrt::Pose p = hrt_test::pose_at(
+        hrt::Vec3(-0.002 + 0.0007 * f, 0.001 - 0.0003 * f, 0.0119 - 0.00002 * f),
+        Eigen::Quaterniond(Eigen::AngleAxisd(0.07 * f, hrt::Vec3::UnitZ())) * Eigen::Quaterniond(0, 1, 0, 0));
     ref.poses[0] = st.poses[0] = p;
     hrt::use_reference_heights(true);
     hrt::frame(scene, ref);

@@ -47,9 +47,8 @@ const char* kTrajectory = "t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n1,0.01,0,0,0,0,
 class RunConfig : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::path(::testing::TempDir()) /
-           ("hrt_run_config_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    dir_ = fs::path(::testing::TempDir()) / ("hrt_run_config_" + std::to_string(::getpid()) + "_" +
+                                             ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_ / "models" / "probe.hbundle");
     fs::create_directories(dir_ / "models" / "plate.hbundle");
@@ -342,9 +341,10 @@ TEST_F(RunConfig, DisabledCouplingNeedsNoGainsAndDeviceLogSizesItself) {
 }
 
 TEST_F(RunConfig, UdpAndPluginDevices) {
-  const hrt::RunConfig u = hrt::load_run_config(scene(kObjects +
-      "[device]\ntype = \"udp\"\nbind = \"0.0.0.0\"\nport = 0\nreply_address = \"10.0.0.2\"\nreply_port = 9000\n"
-      "display_port = 47801\ndisplay_rate = 30\nmax_force = 3\n"));
+  const hrt::RunConfig u = hrt::load_run_config(
+      scene(kObjects +
+            "[device]\ntype = \"udp\"\nbind = \"0.0.0.0\"\nport = 0\nreply_address = \"10.0.0.2\"\nreply_port = 9000\n"
+            "display_port = 47801\ndisplay_rate = 30\nmax_force = 3\n"));
   EXPECT_EQ(u.device.type, "udp");
   EXPECT_EQ(u.device.udp.bind_address, "0.0.0.0");
   EXPECT_EQ(u.device.udp.port, 0);
@@ -356,8 +356,8 @@ TEST_F(RunConfig, UdpAndPluginDevices) {
   EXPECT_EQ(u.device.info.max_force, 3.0);
 
   write_text(dir_ / "libdev.so", "not really a library: the loader only checks that it exists");
-  const hrt::RunConfig p = hrt::load_run_config(
-      scene(kObjects + "[device]\ntype = \"plugin\"\nplugin = \"libdev.so\"\nconfig = \"serial=42\"\nmax_stiffness = 900\n"));
+  const hrt::RunConfig p = hrt::load_run_config(scene(
+      kObjects + "[device]\ntype = \"plugin\"\nplugin = \"libdev.so\"\nconfig = \"serial=42\"\nmax_stiffness = 900\n"));
   EXPECT_EQ(p.device.plugin, file("libdev.so"));
   EXPECT_EQ(p.device.plugin_config, "serial=42");
   EXPECT_TRUE(p.device.max_stiffness_set);
@@ -369,7 +369,9 @@ TEST_F(RunConfig, RelativePathsResolveAgainstTheSceneFolder) {
   write_text(dir_ / "scenes" / "deep" / "local.csv", kTrajectory);
   const std::string text =
       "[[object]]\nbundle = \"../../models/probe.hbundle\"\n"
-      "[[object]]\nbundle = \"" + (dir_ / "models" / "plate.hbundle").string() + "\"\n"  // absolute stays
+      "[[object]]\nbundle = \"" +
+      (dir_ / "models" / "plate.hbundle").string() +
+      "\"\n"  // absolute stays
       "[device]\ntrajectory = \"local.csv\"\n"
       "[trace]\npath = \"../../out/t.csv\"\n";
   const std::string path = scene(text, "scenes/deep/s.toml");
@@ -457,10 +459,9 @@ TEST_F(RunConfig, OutOfRangeValuesAreErrors) {
   expect_error(kObjects + "[device]\ntrajectory = \"slide.csv\"\ndof_actuated = 5\n", "device.dof_actuated",
                "must be 3 or 6");
   expect_error(kObjects + "[device]\ntype = \"udp\"\nport = 70000\n", "device.port", "between 0 and 65535");
-  expect_error(kObjects + "[device]\ntype = \"udp\"\nbind = \"localhost\"\n", "device.bind",
-               "not an IPv4 address");
-  expect_error(minimal("[[object]]\nbundle = \"models/cup.hbundle\"\nposition = [0, 0, 2e4]\n"),
-               "object[2].position", "m from the origin");
+  expect_error(kObjects + "[device]\ntype = \"udp\"\nbind = \"localhost\"\n", "device.bind", "not an IPv4 address");
+  expect_error(minimal("[[object]]\nbundle = \"models/cup.hbundle\"\nposition = [0, 0, 2e4]\n"), "object[2].position",
+               "m from the origin");
 }
 
 TEST_F(RunConfig, BadQuaternionsAreErrors) {
@@ -484,9 +485,10 @@ TEST_F(RunConfig, ObjectErrors) {
                "no bundle folder at " + file("models/nothere.hbundle"));
   expect_error(minimal("[[object]]\nname = \"object1\"\nbundle = \"models/cup.hbundle\"\n"), "object[2].name",
                "\"object1\" is also the name of object[1]");
-  expect_error("[[object]]\nbundle = \"models/probe.hbundle\"\ntrajectory = \"slide.csv\"\n"
-               "[[object]]\nbundle = \"models/plate.hbundle\"\n[device]\ntrajectory = \"slide.csv\"\n",
-               "object[0].trajectory", "is the probe");
+  expect_error(
+      "[[object]]\nbundle = \"models/probe.hbundle\"\ntrajectory = \"slide.csv\"\n"
+      "[[object]]\nbundle = \"models/plate.hbundle\"\n[device]\ntrajectory = \"slide.csv\"\n",
+      "object[0].trajectory", "is the probe");
   expect_error(minimal("[[object]]\nbundle = \"models/cup.hbundle\"\ntrajectory = \"nope.csv\"\n"),
                "object[2].trajectory", "no such file");
   expect_error("[[object]]\nbundle = \"models/probe.hbundle\"\n[device]\ntrajectory = \"slide.csv\"\n", "object",
@@ -495,19 +497,22 @@ TEST_F(RunConfig, ObjectErrors) {
 }
 
 TEST_F(RunConfig, MaterialErrors) {
-  const std::string named = "[[object]]\nname = \"block\"\nbundle = \"models/probe.hbundle\"\n"
-                            "[[object]]\nname = \"plate\"\nbundle = \"models/plate.hbundle\"\n"
-                            "[device]\ntrajectory = \"slide.csv\"\n";
+  const std::string named =
+      "[[object]]\nname = \"block\"\nbundle = \"models/probe.hbundle\"\n"
+      "[[object]]\nname = \"plate\"\nbundle = \"models/plate.hbundle\"\n"
+      "[device]\ntrajectory = \"slide.csv\"\n";
   expect_error(named + "[[material]]\nobject = \"plat\"\nstiffness = 10\n", "material[0].object",
                "no object is named \"plat\" (did you mean \"plate\"?)");
   expect_error(named + "[[material]]\nobject = \"block\"\n", "material[0].object", "is the probe");
   expect_error(named + "[[material]]\nstiffness = 10\n", "material[0].object", "missing");
   expect_error(named + "[[material]]\nobject = \"plate\"\n[[material]]\nobject = \"plate\"\n", "material[1].object",
                "already has material[0]");
-  expect_error(named + "[[material]]\nobject = \"plate\"\nstiffness = 0\n", "material[0].stiffness", "must be between 1 and");
+  expect_error(named + "[[material]]\nobject = \"plate\"\nstiffness = 0\n", "material[0].stiffness",
+               "must be between 1 and");
   // The pair's mu_static below the inherited mu_dynamic names the key it set.
-  expect_error(named + "[friction]\nmu_static = 0.5\nmu_dynamic = 0.4\n[[material]]\nobject = \"plate\"\nmu_static = 0.3\n",
-               "material[0].mu_static", "must not exceed mu_static (0.3)");
+  expect_error(
+      named + "[friction]\nmu_static = 0.5\nmu_dynamic = 0.4\n[[material]]\nobject = \"plate\"\nmu_static = 0.3\n",
+      "material[0].mu_static", "must not exceed mu_static (0.3)");
   expect_error(named + "[[material]]\nobject = \"plate\"\nfriction = 0.3\n", "material[0].friction", "unknown key");
 }
 
@@ -526,8 +531,7 @@ TEST_F(RunConfig, DeviceAndRunConsistencyErrors) {
                "needs a scripted or virtual device");
   expect_error(objects + "[device]\ntype = \"udp\"\nreply_address = \"10.0.0.2\"\n", "device.reply_address",
                "needs a reply_port");
-  expect_error(minimal("[coupling]\nk_lin = 100\nb_lin = 1\nk_ang = 1\n"), "coupling.b_ang",
-               "give all four gains");
+  expect_error(minimal("[coupling]\nk_lin = 100\nb_lin = 1\nk_ang = 1\n"), "coupling.b_ang", "give all four gains");
   expect_error(minimal("[trace]\npath = \"nofolder/a.csv\"\n"), "trace.path", "does not exist");
   expect_error(minimal("[trace]\npath = \"\"\n"), "trace.path", "empty path");
   expect_error(minimal("[trace]\ndevice_log = \"out/d.csv\"\n[loop]\nlog_capacity = 0\n"), "loop.log_capacity",
@@ -544,7 +548,8 @@ TEST_F(RunConfig, DepthBackendKeys) {
   EXPECT_EQ(c.occlusion_steps, 16);
   c = hrt::load_run_config(scene(minimal("[run]\nbackend = \"auto\"\n")));
   EXPECT_EQ(c.backend, "auto");
-  c = hrt::load_run_config(scene(minimal("[run]\nbackend = \"gl\"\ngl_search = \"occlusion\"\nocclusion_steps = 12\n")));
+  c = hrt::load_run_config(
+      scene(minimal("[run]\nbackend = \"gl\"\ngl_search = \"occlusion\"\nocclusion_steps = 12\n")));
   EXPECT_EQ(c.backend, "gl");
   EXPECT_EQ(c.gl_search, "occlusion");
   EXPECT_EQ(c.occlusion_steps, 12);
@@ -617,9 +622,8 @@ std::vector<std::string> split(const std::string& s, char sep) {
 class Trace : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::path(::testing::TempDir()) /
-           ("hrt_trace_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    dir_ = fs::path(::testing::TempDir()) / ("hrt_trace_" + std::to_string(::getpid()) + "_" +
+                                             ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
   }
@@ -959,8 +963,8 @@ TEST_F(RunConfig, NonRegularAndHugeInputsAndRawBytesInMessages) {
   } catch (const hrt::SceneFileError& e) {
     EXPECT_NE(std::string(e.what()).find("is a FIFO, not a regular file"), std::string::npos) << e.what();
   }
-  expect_error(minimal("[[object]]\nbundle = \"models/cup.hbundle\"\ntrajectory = \"fifo\"\n"),
-               "object[2].trajectory", "is a FIFO");
+  expect_error(minimal("[[object]]\nbundle = \"models/cup.hbundle\"\ntrajectory = \"fifo\"\n"), "object[2].trajectory",
+               "is a FIFO");
   try {
     hrt::load_run_config("/dev/zero");
     ADD_FAILURE() << "/dev/zero was read";
@@ -971,7 +975,8 @@ TEST_F(RunConfig, NonRegularAndHugeInputsAndRawBytesInMessages) {
   const std::string big(100000, 'x');
   const std::string nul = std::string("ab") + '\0' + "\x1b[31m";
   for (const std::string& v : {big, nul}) {
-    const std::string path = scene(minimal("[run]\nbackend = \"" + (v == nul ? std::string("ab\\u0000\\u001b[31m") : v) + "\"\n"));
+    const std::string path =
+        scene(minimal("[run]\nbackend = \"" + (v == nul ? std::string("ab\\u0000\\u001b[31m") : v) + "\"\n"));
     try {
       hrt::load_run_config(path);
       ADD_FAILURE();

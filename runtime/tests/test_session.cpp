@@ -71,13 +71,17 @@ void lower_bottom_heights(hrt::Model& a, float by) {
   hrt::prepare_surface_map(a);
 }
 
-std::vector<std::string> spec_table_columns(const std::string& heading) { return hrt_test::trace_spec_columns(heading); }
+std::vector<std::string> spec_table_columns(const std::string& heading) {
+  return hrt_test::trace_spec_columns(heading);
+}
 
 std::vector<std::string> split(const std::string& s, char sep) {
   std::vector<std::string> out(1);
   for (char c : s) {
-    if (c == sep) out.emplace_back();
-    else out.back() += c;
+    if (c == sep)
+      out.emplace_back();
+    else
+      out.back() += c;
   }
   return out;
 }
@@ -203,8 +207,9 @@ TEST(Session, DeviceLogHasTheSpecsColumnsAndOneExactRowPerTick) {
   const std::vector<std::string> spec = spec_table_columns("## Device log columns");
   ASSERT_EQ(spec.size(), 14u);
   const hrt::Trajectory tr = hrt::Trajectory::from_samples(
-      {0.0, 0.1}, {pose_at(Vec3(0.01, -0.02, 0.03)),
-                   pose_at(Vec3(0.02, 0.01, 0.025), Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Vec3(1, 2, 3).normalized())))});
+      {0.0, 0.1},
+      {pose_at(Vec3(0.01, -0.02, 0.03)),
+       pose_at(Vec3(0.02, 0.01, 0.025), Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Vec3(1, 2, 3).normalized())))});
   hrt::ScriptedDevice device(tr, hrt::DeviceInfo{});
   hrt::DeviceLoopOptions o;
   o.soft_start = 0.005;
@@ -258,11 +263,21 @@ TEST(Session, DeviceLogHasTheSpecsColumnsAndOneExactRowPerTick) {
     const std::vector<double>& r = rows[static_cast<size_t>(i)];
     EXPECT_EQ(r[0], l.t);
     EXPECT_EQ(r[0], i * 1e-3);
-    const double want[13] = {l.target.position.x(), l.target.position.y(), l.target.position.z(),
-                             l.target.rotation.x(), l.target.rotation.y(), l.target.rotation.z(),
-                             l.target.rotation.w(), l.output[0], l.output[1], l.output[2],
-                             l.output[3], l.output[4], l.output[5]};
-    for (int c = 0; c < 13; ++c) EXPECT_EQ(r[static_cast<size_t>(c + 1)], want[c]) << spec[static_cast<size_t>(c + 1)] << ", tick " << i;
+    const double want[13] = {l.target.position.x(),
+                             l.target.position.y(),
+                             l.target.position.z(),
+                             l.target.rotation.x(),
+                             l.target.rotation.y(),
+                             l.target.rotation.z(),
+                             l.target.rotation.w(),
+                             l.output[0],
+                             l.output[1],
+                             l.output[2],
+                             l.output[3],
+                             l.output[4],
+                             l.output[5]};
+    for (int c = 0; c < 13; ++c)
+      EXPECT_EQ(r[static_cast<size_t>(c + 1)], want[c]) << spec[static_cast<size_t>(c + 1)] << ", tick " << i;
     // The log is what the device was given, and the target is the trajectory's.
     for (int c = 0; c < 6; ++c) EXPECT_EQ(r[static_cast<size_t>(8 + c)], written[static_cast<size_t>(i)][c]);
     const Pose p = tr.sample(i * 1e-3);
@@ -312,7 +327,8 @@ TEST(Session, FreeProbeSettlesOnAStillTargetThroughTheCoupling) {
     ASSERT_TRUE(c.valid);
     for (int e = 0; e < 6; ++e) ASSERT_EQ(c.wrench[e], -f.coupling[e]) << "frame " << i;
     const hrt::BodyState& s = session.body_state();
-    const Vec3 spring = k * (target.position + target.rotation * session.body().center_of_mass - s.x) - so.coupling.b_lin * s.v;
+    const Vec3 spring =
+        k * (target.position + target.rotation * session.body().center_of_mass - s.x) - so.coupling.b_lin * s.v;
     ASSERT_NEAR((f.coupling.head<3>() - spring).norm(), 0.0, 1e-12) << "frame " << i;
     ASSERT_LE(c.stiffness.cwiseAbs().maxCoeff(), 1e-9 * k) << "frame " << i;
     ASSERT_TRUE(c.target_ref.position == target.position);

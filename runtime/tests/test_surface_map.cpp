@@ -95,8 +95,8 @@ TEST(SurfaceMapRowSpan, HoldsEveryTexelWithinTheMarginOfRandomTriangles) {
 TEST(SurfaceMapRowSpan, CornersAndEdgesOnTexelCentres) {
   // Integer corners put texel centres exactly on the edges and at the margin:
   // rounding must not drop them.
-  const double cases[][6] = {{0, 0, 10, 0, 0, 10},    {0, 0, 0, 10, 10, 0},   {3, 2, 40, 7, 5, 9},
-                             {0, 0, 100, 1, 50, 1},  {7, 7, 8, 7, 7, 8},      {0, 0, 200, 199, 1, 0}};
+  const double cases[][6] = {{0, 0, 10, 0, 0, 10},  {0, 0, 0, 10, 10, 0}, {3, 2, 40, 7, 5, 9},
+                             {0, 0, 100, 1, 50, 1}, {7, 7, 8, 7, 7, 8},   {0, 0, 200, 199, 1, 0}};
   for (const auto& c : cases) {
     const double ax[3] = {c[0], c[2], c[4]}, ay[3] = {c[1], c[3], c[5]};
     for (double margin : {hrt::kQuadReadMargin, 1.0, 2.0, 0.0}) check_triangle(ax, ay, margin);

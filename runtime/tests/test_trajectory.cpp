@@ -19,12 +19,12 @@
 
 namespace {
 
+using Eigen::AngleAxisd;
+using Eigen::Quaterniond;
 using hrt::Pose;
 using hrt::Trajectory;
 using hrt::TrajectoryError;
 using hrt::Vec3;
-using Eigen::AngleAxisd;
-using Eigen::Quaterniond;
 
 std::string write_file(const std::string& name, const std::string& text) {
   const auto dir = std::filesystem::temp_directory_path() / ("hrt_traj_" + std::to_string(getpid()));
@@ -164,8 +164,8 @@ TEST(Trajectory, SampleIsLinearAndSlerpsAgainstClosedForms) {
   const double angle = 100.0 * M_PI / 180.0;
   Quaterniond q1(AngleAxisd(angle, axis));
   q1.coeffs() *= -1.0;
-  const Trajectory tr = Trajectory::from_samples(
-      {1.0, 3.0}, {pose(Vec3(0, 0, 0), Quaterniond::Identity()), pose(Vec3(2, -4, 6), q1)});
+  const Trajectory tr =
+      Trajectory::from_samples({1.0, 3.0}, {pose(Vec3(0, 0, 0), Quaterniond::Identity()), pose(Vec3(2, -4, 6), q1)});
   EXPECT_GT(tr.poses()[1].rotation.w(), 0.0);
   for (double s : {0.5, 0.3}) {
     const Pose p = tr.sample(1.0 + 2.0 * s);
@@ -188,10 +188,10 @@ TEST(Trajectory, SampleIsLinearAndSlerpsAgainstClosedForms) {
 TEST(Trajectory, VelocityIsTheSegmentsFiniteDifference) {
   const Vec3 axis = Vec3(0, 0.6, 0.8);
   const double angle = 1.2;  // rad over the 2 s segment
-  const Trajectory tr = Trajectory::from_samples(
-      {0.0, 2.0, 3.0}, {pose(Vec3(0, 0, 0), Quaterniond::Identity()),
-                        pose(Vec3(1, 2, 3), Quaterniond(AngleAxisd(angle, axis))),
-                        pose(Vec3(1, 2, 3), Quaterniond(AngleAxisd(angle, axis)))});
+  const Trajectory tr =
+      Trajectory::from_samples({0.0, 2.0, 3.0}, {pose(Vec3(0, 0, 0), Quaterniond::Identity()),
+                                                 pose(Vec3(1, 2, 3), Quaterniond(AngleAxisd(angle, axis))),
+                                                 pose(Vec3(1, 2, 3), Quaterniond(AngleAxisd(angle, axis)))});
   const hrt::Vec6 v = tr.velocity(0.7);
   EXPECT_TRUE(v.head<3>().isApprox(Vec3(0.5, 1.0, 1.5), 1e-14));
   EXPECT_TRUE(v.tail<3>().isApprox(axis * angle / 2.0, 1e-12)) << v.transpose();
@@ -229,7 +229,7 @@ TEST(Trajectory, CachedSegmentAgreesWithSearch) {
     ASSERT_TRUE(tr.velocity(s).isApprox(cold.velocity(s), 1e-12)) << s;
   };
   for (double s = times.front() - 0.01; s < times.back() + 0.01; s += 0.001) check(s);  // advancing
-  for (double s = times.back(); s > times.front(); s -= 0.037) check(s);              // backwards
+  for (double s = times.back(); s > times.front(); s -= 0.037) check(s);                // backwards
   for (int i = 0; i < 300; ++i) check(times.front() + (u(rng) + 1.0) / 2.0 * (times.back() - times.front()));
   // At a sample time the pose is the sample's own.
   for (size_t i = 0; i < times.size(); ++i)
@@ -237,9 +237,9 @@ TEST(Trajectory, CachedSegmentAgreesWithSearch) {
 }
 
 TEST(ScriptedDevice, PlaysTheTrajectoryAndKeepsTheLastWrench) {
-  const Trajectory tr = Trajectory::from_samples(
-      {0.0, 1.0}, {pose(Vec3(0, 0, 0), Quaterniond::Identity()),
-                   pose(Vec3(0.1, 0, 0), Quaterniond(AngleAxisd(0.5, Vec3::UnitX())))});
+  const Trajectory tr =
+      Trajectory::from_samples({0.0, 1.0}, {pose(Vec3(0, 0, 0), Quaterniond::Identity()),
+                                            pose(Vec3(0.1, 0, 0), Quaterniond(AngleAxisd(0.5, Vec3::UnitX())))});
   hrt::DeviceInfo info;
   info.name = "scripted";
   hrt::ScriptedDevice dev(tr, info);

@@ -364,7 +364,7 @@ TEST(UdpDevice, ValidPosesMoveThePoseAndWrenchesAnswerTheClient) {
   hrt::UdpDevice dev(any_port(), hrt::DeviceInfo{});
   dev.open();
   hrt::DeviceSample s;
-  EXPECT_FALSE(dev.read(0.0, s));  // nothing yet
+  EXPECT_FALSE(dev.read(0.0, s));     // nothing yet
   dev.write(0.0, hrt::Vec6::Ones());  // nobody to answer: not sent
   EXPECT_EQ(dev.counters().sent_wrenches, 0u);
 
@@ -416,7 +416,7 @@ TEST(UdpDevice, BadPacketsAreDroppedAndCounted) {
   ASSERT_DOUBLE_EQ(s.pose.position.x(), 0.5);
 
   uint64_t sent = 1;
-  auto expect_dropped = [&](const Bytes& b, uint64_t hrt::UdpCounters::*counter, const char* what) {
+  auto expect_dropped = [&](const Bytes& b, uint64_t hrt::UdpCounters::* counter, const char* what) {
     const uint64_t before = dev.counters().*counter;
     c.send_to(dev.bound_port(), b);
     ++sent;

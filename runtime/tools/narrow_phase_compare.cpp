@@ -109,9 +109,12 @@ int main(int argc, char** argv) {
   int poses = 200, repeat = 5;
   unsigned seed = 1;
   for (int i = 3; i + 1 < argc; i += 2) {
-    if (!std::strcmp(argv[i], "--poses")) poses = std::atoi(argv[i + 1]);
-    else if (!std::strcmp(argv[i], "--repeat")) repeat = std::atoi(argv[i + 1]);
-    else if (!std::strcmp(argv[i], "--seed")) seed = static_cast<unsigned>(std::atoi(argv[i + 1]));
+    if (!std::strcmp(argv[i], "--poses"))
+      poses = std::atoi(argv[i + 1]);
+    else if (!std::strcmp(argv[i], "--repeat"))
+      repeat = std::atoi(argv[i + 1]);
+    else if (!std::strcmp(argv[i], "--seed"))
+      seed = static_cast<unsigned>(std::atoi(argv[i + 1]));
     else {
       std::fprintf(stderr, "unknown option %s\n", argv[i]);
       return 2;
@@ -252,13 +255,14 @@ int main(int argc, char** argv) {
     if (b.norm() > 0.5 && std::abs(old[k].d) > 10 * gjk_tol)
       worst_angle = std::max(worst_angle, std::acos(std::clamp(a.dot(b), -1.0, 1.0)));
   }
-  std::printf("per call    intersecting: new %.0f ns, previous %.0f ns (ratio %.2f); separated: new %.0f ns, "
-              "previous %.0f ns (ratio %.2f); medians of %d repeats\n",
-              new_in, old_in, new_in / std::max(1.0, old_in), new_sep, old_sep, new_sep / std::max(1.0, old_sep),
-              repeat);
-  std::printf("agreement   %zu intersecting pairs: max |d_new - d_prev| %.3g m; %zu separated: %.3g m; "
-              "normals (|d| > 10 tol) within %.3g rad\n",
-              n_in, worst_in, n_sep, worst_sep, worst_angle);
+  std::printf(
+      "per call    intersecting: new %.0f ns, previous %.0f ns (ratio %.2f); separated: new %.0f ns, "
+      "previous %.0f ns (ratio %.2f); medians of %d repeats\n",
+      new_in, old_in, new_in / std::max(1.0, old_in), new_sep, old_sep, new_sep / std::max(1.0, old_sep), repeat);
+  std::printf(
+      "agreement   %zu intersecting pairs: max |d_new - d_prev| %.3g m; %zu separated: %.3g m; "
+      "normals (|d| > 10 tol) within %.3g rad\n",
+      n_in, worst_in, n_sep, worst_sep, worst_angle);
   std::printf("failures    new %zu, previous %zu (FCL threw), previous aborted the process %zu time(s)\n", new_fail,
               old_fail, aborted);
   return 0;

@@ -70,8 +70,8 @@ struct DhdDevice {
   std::atomic<bool> running{false};
   std::atomic<bool> have_pose{false};
   std::atomic<unsigned> buttons{0};
-  SeqLock<7> pose;    // x y z qx qy qz qw, written by the servo thread
-  SeqLock<6> wrench;  // fx fy fz tx ty tz, written by hrt's device thread
+  SeqLock<7> pose;                              // x y z qx qy qz qw, written by the servo thread
+  SeqLock<6> wrench;                            // fx fy fz tx ty tz, written by hrt's device thread
   double last_pose[7] = {0, 0, 0, 0, 0, 0, 1};  // hrt's thread only
 };
 
@@ -150,7 +150,8 @@ void* dhd_create(const char* config, char* error, size_t error_size) {
       d->max_torque = std::strtod(val.c_str(), &e);
     }
     if (e == nullptr || e == val.c_str() || *e != '\0') {
-      set_error(error, error_size, "dhd: bad config entry '" + tok + "' (device=N gravity=on|off max_force=F max_torque=T)");
+      set_error(error, error_size,
+                "dhd: bad config entry '" + tok + "' (device=N gravity=on|off max_force=F max_torque=T)");
       delete d;
       return nullptr;
     }
@@ -231,8 +232,15 @@ void dhd_write(void* h, double t, const double wrench[6]) {
   static_cast<DhdDevice*>(h)->wrench.store(wrench);
 }
 
-const hrt_device_plugin kTable = {HRT_DEVICE_PLUGIN_ABI, sizeof(hrt_device_plugin), dhd_create, dhd_destroy,
-                                  dhd_info, dhd_open, dhd_close, dhd_read, dhd_write};
+const hrt_device_plugin kTable = {HRT_DEVICE_PLUGIN_ABI,
+                                  sizeof(hrt_device_plugin),
+                                  dhd_create,
+                                  dhd_destroy,
+                                  dhd_info,
+                                  dhd_open,
+                                  dhd_close,
+                                  dhd_read,
+                                  dhd_write};
 
 }  // namespace
 

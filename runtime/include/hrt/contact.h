@@ -49,11 +49,11 @@ struct Window {
 
 // One contact patch between the probe A and another object B.
 struct ContactPatch {
-  int object_b = -1;            // index of B in the scene (A is the probe)
-  Vec3 p_a = Vec3::Zero();      // contact point on A (world)
-  Vec3 p_b = Vec3::Zero();      // contact point on B (world)
-  Vec3 n = Vec3::UnitZ();       // unit, from A into B
-  Vec3 u = Vec3::UnitX();       // unit tangent; {u, v, n} right-handed
+  int object_b = -1;        // index of B in the scene (A is the probe)
+  Vec3 p_a = Vec3::Zero();  // contact point on A (world)
+  Vec3 p_b = Vec3::Zero();  // contact point on B (world)
+  Vec3 n = Vec3::UnitZ();   // unit, from A into B
+  Vec3 u = Vec3::UnitX();   // unit tangent; {u, v, n} right-handed
   Vec3 v = Vec3::UnitY();
   Window window;
   std::vector<uint32_t> tris_a;  // coarse triangles of A facing +n (the highest surface)
@@ -64,20 +64,20 @@ struct ContactPatch {
   // fins). They join the height fields, not the window.
   std::vector<uint32_t> reach_a;
   std::vector<uint32_t> reach_b;
-  int piece_pairs = 0;           // how many piece pairs were clustered into this patch
+  int piece_pairs = 0;  // how many piece pairs were clustered into this patch
 
   // Results of the force model (filled by compute_patch_wrench).
-  double delta = 0.0;            // directional penetration depth (Eq. 9), m
-  Vec6 grad = Vec6::Zero();      // d delta / d(u, v, n, theta_u, theta_v, theta_n); [2] == 1
+  double delta = 0.0;        // directional penetration depth (Eq. 9), m
+  Vec6 grad = Vec6::Zero();  // d delta / d(u, v, n, theta_u, theta_v, theta_n); [2] == 1
   // Second differences of delta from the same configurations (Eq. 7's
   // central differences give them for free): d2 delta / d q_i^2 for q = (u,
   // v, n, theta_u, theta_v, theta_n), 1/m and m/rad^2; [2] = 0 (delta is
   // linear in n); 0 where a neighbour is uncovered. The diagonal of the
   // Hessian that the Gauss-Newton stiffness leaves out (hrt/session.h).
   Vec6 curvature = Vec6::Zero();
-  Vec3 force = Vec3::Zero();     // on A, world, N
-  Vec3 torque = Vec3::Zero();    // on A about A's centre of mass, world, N m
-  bool covered = false;          // some texel was covered by both A and B
+  Vec3 force = Vec3::Zero();   // on A, world, N
+  Vec3 torque = Vec3::Zero();  // on A about A's centre of mass, world, N m
+  bool covered = false;        // some texel was covered by both A and B
 
   // Safety (frame(), after the force model; src/contact/frame.cpp states the
   // rules): whatever the atlas heights say, a patch's force is that of a

@@ -171,12 +171,12 @@ struct HeightSeeds {
 // an uncovered texel of A holds -inf, of B +inf, so h_A - h_B is -inf there
 // and never NaN.
 struct DepthScratch {
-  int capacity = 0;                 // side length (texels, border included) reserved
-  std::vector<double> hb;           // B's min heights, N x N
-  std::vector<double> ha0;          // A at configuration 0, (N + 2 b)^2 with border b
-  std::vector<double> ha;           // A at one configuration (directional_depth)
-  std::vector<double> hcfg;         // A at the 10 perturbed configurations, N x N each
-  HeightSeeds seeds;                // A's configuration-0 seeds (surface mode)
+  int capacity = 0;          // side length (texels, border included) reserved
+  std::vector<double> hb;    // B's min heights, N x N
+  std::vector<double> ha0;   // A at configuration 0, (N + 2 b)^2 with border b
+  std::vector<double> ha;    // A at one configuration (directional_depth)
+  std::vector<double> hcfg;  // A at the 10 perturbed configurations, N x N each
+  HeightSeeds seeds;         // A's configuration-0 seeds (surface mode)
   // HeightMode::mesh: a patch's tris and reach lists of one side, joined.
   std::vector<uint32_t> tris_a, tris_b;
 
@@ -191,16 +191,24 @@ struct DepthScratch {
 // The 11 configurations of Eq. 7, in the order of DepthGradient::delta_at.
 enum class Config : int {
   zero = 0,
-  plus_u, minus_u, plus_v, minus_v,
-  plus_theta_u, minus_theta_u, plus_theta_v, minus_theta_v, plus_theta_n, minus_theta_n,
+  plus_u,
+  minus_u,
+  plus_v,
+  minus_v,
+  plus_theta_u,
+  minus_theta_u,
+  plus_theta_v,
+  minus_theta_v,
+  plus_theta_n,
+  minus_theta_n,
   count
 };
 
 // Rigid motion of A (world frame, applied after A's pose) for one
 // configuration: translation by +-lin_step along u or v, or rotation by
 // +-ang_step about u, v or n through the point c (A's centre of mass, world).
-Eigen::Isometry3d config_motion(Config c, const ContactPatch& patch, const Vec3& c_world,
-                                double lin_step, double ang_step);
+Eigen::Isometry3d config_motion(Config c, const ContactPatch& patch, const Vec3& c_world, double lin_step,
+                                double ang_step);
 
 // Effective steps for a patch (resolving the 0 defaults of ForceOptions).
 double effective_lin_step(const ContactPatch& patch, const ForceOptions& opt);
@@ -226,10 +234,10 @@ bool grid_undersamples(const Model& A, const Model& B, const Window& w);
 // triangles that cannot reach B's lowest possible point, and B's that A's
 // highest cannot reach, less the configurations' motion: they could only
 // give overlaps below zero, which make no force).
-void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m,
-                       const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
-                       const Window& w, int border, bool keep_max, double* out,
-                       HeightMode mode = HeightMode::surface, double cull = std::numeric_limits<double>::quiet_NaN());
+void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const std::vector<uint32_t>& tris,
+                       const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, int border, bool keep_max,
+                       double* out, HeightMode mode = HeightMode::surface,
+                       double cull = std::numeric_limits<double>::quiet_NaN());
 
 // The same for `count` placements of M at once (out[k] gets placement k,
 // with border borders[k], or 0 when borders is null): triangle by triangle,
@@ -237,16 +245,14 @@ void rasterize_heights(const Model& M, const Eigen::Isometry3d& world_from_m,
 // the cache for all placements but the first (they differ by about a texel).
 void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from_m, const int* borders, int count,
                              const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
-                             const Window& w, bool keep_max, double* const* out,
-                             HeightMode mode = HeightMode::surface,
+                             const Window& w, bool keep_max, double* const* out, HeightMode mode = HeightMode::surface,
                              double cull = std::numeric_limits<double>::quiet_NaN());
 
 // rasterize_heights in the surface mode (with `border`, same layout), also
 // writing each texel's seed (seeds reserved for w.resolution + 2 border).
-void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_from_m,
-                              const std::vector<uint32_t>& tris, const Vec3& n, const Vec3& u, const Vec3& v,
-                              const Window& w, int border, bool keep_max, double* out, HeightSeeds& seeds,
-                              double cull = std::numeric_limits<double>::quiet_NaN());
+void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_from_m, const std::vector<uint32_t>& tris,
+                              const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, int border, bool keep_max,
+                              double* out, HeightSeeds& seeds, double cull = std::numeric_limits<double>::quiet_NaN());
 
 // The surface-mode heights of M at a placement close to the one that made
 // `seeds` (a finite-difference configuration of Eq. 7: at most a texel or so
@@ -260,17 +266,16 @@ void rasterize_heights_seeded(const Model& M, const Eigen::Isometry3d& world_fro
 // does not cover (+inf for keep_max, -inf else) can give no overlap and is
 // left uncovered without being resolved (the max of Eq. 9 is unchanged).
 void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Eigen::Isometry3d& seed_world_from_m,
-                     const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, bool keep_max,
-                     const double* seed_h, int border, const HeightSeeds& seeds, double* out,
-                     const double* other = nullptr);
+                     const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, bool keep_max, const double* seed_h,
+                     int border, const HeightSeeds& seeds, double* out, const double* other = nullptr);
 
 // resolve_heights computes its fixed point for blocks of texels vectorized
 // across lanes (Google Highway, dispatched at run time to the widest vectors
 // the CPU has). The scalar loop it replaced stays as the reference: the
 // same result, bit for bit, on every target (tested).
 void resolve_heights_reference(const Model& M, const Eigen::Isometry3d& world_from_m,
-                               const Eigen::Isometry3d& seed_world_from_m, const Vec3& n, const Vec3& u,
-                               const Vec3& v, const Window& w, bool keep_max, const double* seed_h, int border,
+                               const Eigen::Isometry3d& seed_world_from_m, const Vec3& n, const Vec3& u, const Vec3& v,
+                               const Window& w, bool keep_max, const double* seed_h, int border,
                                const HeightSeeds& seeds, double* out, const double* other = nullptr);
 // The vector target resolve_heights runs on this CPU ("AVX2", "AVX3", ...).
 const char* resolve_heights_target();
@@ -294,9 +299,8 @@ const std::vector<uint32_t>& height_faces(const std::vector<uint32_t>& tris, con
 // false. Rasterizes B every call: for tests and tools; the force loop uses
 // compute_patch_wrench.
 double directional_depth(const Model& A, const Eigen::Isometry3d& world_from_a, const Model& B,
-                         const Eigen::Isometry3d& world_from_b, const ContactPatch& patch,
-                         DepthScratch& scratch, bool* covered = nullptr,
-                         HeightMode mode = HeightMode::surface);
+                         const Eigen::Isometry3d& world_from_b, const ContactPatch& patch, DepthScratch& scratch,
+                         bool* covered = nullptr, HeightMode mode = HeightMode::surface);
 
 // delta and gradient of one patch, without forces (the force model below
 // is Eq. 5 applied to these). delta_at[c] holds delta at configuration c
@@ -456,8 +460,7 @@ constexpr double kKinkDecided = 0.10;
 // d delta / dx from delta at x + step, x and x - step by the rule above;
 // straddle (optional) gets the weight of the one-sided difference in the
 // result (0: the central difference, 1: the steeper one-sided one).
-double kink_safe_difference(double d_plus, double d_zero, double d_minus, double step,
-                            double* straddle = nullptr);
+double kink_safe_difference(double d_plus, double d_zero, double d_minus, double step, double* straddle = nullptr);
 
 // The force model on a patch from its DepthGradient (what
 // compute_patch_wrench does after compute_depth_gradient): patch.covered,
@@ -475,13 +478,13 @@ void apply_depth_gradient(const Model& A, const Model& B, ContactPatch& patch, c
 // lifetime: the caller keeps one bool per tracked patch and passes it as
 // `warned` (set to true the first time it is counted); with warned ==
 // nullptr every call that undersamples counts.
-void compute_patch_wrench(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
-                          ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch,
-                          DepthWarnings* warnings = nullptr, bool* warned = nullptr);
+void compute_patch_wrench(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b, ContactPatch& patch,
+                          const ForceOptions& opt, DepthScratch& scratch, DepthWarnings* warnings = nullptr,
+                          bool* warned = nullptr);
 
 // Eq. 5-6 alone: force and torque on A (world) from delta and its gradient.
-void wrench_from_gradient(const ContactPatch& patch, double delta, const Vec6& grad, double stiffness,
-                          Vec3& force, Vec3& torque);
+void wrench_from_gradient(const ContactPatch& patch, double delta, const Vec6& grad, double stiffness, Vec3& force,
+                          Vec3& torque);
 
 // The opposite wrench on B about B's centre of mass c_b, given A's (force F,
 // torque T_a about c_a): (-F, -T_a - (c_a - c_b) x F).

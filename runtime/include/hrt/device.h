@@ -38,8 +38,8 @@ namespace hrt {
 
 struct DeviceInfo {
   std::string name = "device";
-  int dof_sensed = 6;    // 6: position and orientation; 3: position only (orientation reads identity)
-  int dof_actuated = 6;  // 6: force and torque; 3: force only (the torque is not displayed)
+  int dof_sensed = 6;                    // 6: position and orientation; 3: position only (orientation reads identity)
+  int dof_actuated = 6;                  // 6: force and torque; 3: force only (the torque is not displayed)
   Vec3 workspace = Vec3::Constant(0.1);  // half extents of the handle's workspace box, device frame, m
   double max_force = 10.0;               // N, continuous
   double max_torque = 0.5;               // N m (ignored when dof_actuated == 3)
@@ -48,9 +48,9 @@ struct DeviceInfo {
 };
 
 struct DeviceSample {
-  Pose pose;              // handle pose, device frame
-  bool clutch = false;    // the clutch (re-index) button is held
-  uint32_t buttons = 0;   // other buttons, bit per button
+  Pose pose;             // handle pose, device frame
+  bool clutch = false;   // the clutch (re-index) button is held
+  uint32_t buttons = 0;  // other buttons, bit per button
 };
 
 struct DeviceError : std::runtime_error {
@@ -154,13 +154,13 @@ class UdpDevice : public Device {
   UdpDevice(UdpOptions options, DeviceInfo info);
   ~UdpDevice() override;
   const DeviceInfo& info() const override { return info_; }
-  void open() override;   // binds; throws DeviceError ("udp: cannot bind 127.0.0.1:47800: ...")
+  void open() override;  // binds; throws DeviceError ("udp: cannot bind 127.0.0.1:47800: ...")
   void close() override;
-  bool read(double t, DeviceSample& out) noexcept override;   // drains the socket (non-blocking)
+  bool read(double t, DeviceSample& out) noexcept override;  // drains the socket (non-blocking)
   void write(double t, const Vec6& wrench) noexcept override;
   void publish_poses(double t, const Pose* poses, int count) noexcept override;
-  int bound_port() const;           // after open()
-  UdpCounters counters() const;     // snapshot (atomics)
+  int bound_port() const;        // after open()
+  UdpCounters counters() const;  // snapshot (atomics)
 
  private:
   struct Impl;

@@ -68,15 +68,16 @@ class Clock {
   virtual ~Clock() = default;
   virtual double now() const noexcept = 0;  // seconds, monotonic
 };
-class SteadyClock : public Clock {          // CLOCK_MONOTONIC
+class SteadyClock : public Clock {  // CLOCK_MONOTONIC
  public:
   double now() const noexcept override;
 };
-class ManualClock : public Clock {          // set by the caller (lockstep, tests)
+class ManualClock : public Clock {  // set by the caller (lockstep, tests)
  public:
   double now() const noexcept override { return t_.load(std::memory_order_acquire); }
   void set(double t) noexcept { t_.store(t, std::memory_order_release); }
   void advance(double dt) noexcept { set(now() + dt); }
+
  private:
   std::atomic<double> t_{0.0};
 };
@@ -124,34 +125,34 @@ struct WorkspaceMap {
   double scale = 1.0;
   Pose offset;
   Pose grasp;
-  Pose to_scene(const Pose& device) const;          // the probe target pose
-  Pose to_device(const Pose& target) const;         // the inverse: the handle pose that makes `target`
-  Vec6 wrench_to_device(const Vec6& scene) const;   // rotate force and torque into the device frame
+  Pose to_scene(const Pose& device) const;         // the probe target pose
+  Pose to_device(const Pose& target) const;        // the inverse: the handle pose that makes `target`
+  Vec6 wrench_to_device(const Vec6& scene) const;  // rotate force and torque into the device frame
 };
 
 // Device -> simulation (published by the device thread every period).
 struct DeviceTarget {
-  double time = 0.0;          // session time of the sample, s
+  double time = 0.0;  // session time of the sample, s
   uint64_t tick = 0;
-  Pose device;                // raw handle pose, device frame
-  Pose target;                // probe target pose, scene (after clutch re-indexing)
+  Pose device;  // raw handle pose, device frame
+  Pose target;  // probe target pose, scene (after clutch re-indexing)
   bool clutched = false;
-  bool valid = false;         // a pose has been read
-  Vec6 output = Vec6::Zero(); // the wrench last written to the device (device frame)
+  bool valid = false;          // a pose has been read
+  Vec6 output = Vec6::Zero();  // the wrench last written to the device (device frame)
 };
 
 // Simulation -> device (published after each simulation frame).
 struct DeviceCommand {
-  double time = 0.0;          // session time of the frame, s
+  double time = 0.0;  // session time of the frame, s
   uint64_t frame = 0;
-  Pose target_ref;            // the target the frame was computed at
-  Vec6 wrench = Vec6::Zero(); // wrench for the device at target_ref, scene frame (force N, torque N m)
+  Pose target_ref;                // the target the frame was computed at
+  Vec6 wrench = Vec6::Zero();     // wrench for the device at target_ref, scene frame (force N, torque N m)
   Mat6 stiffness = Mat6::Zero();  // K_eff, symmetric positive semi-definite: dW = -K_eff d
   bool valid = false;
 };
 
 struct DeviceLoopOptions {
-  double period = 1e-3;          // s (1 kHz)
+  double period = 1e-3;  // s (1 kHz)
   // The watchdog: when the simulation has not published for `watchdog`
   // seconds the output ramps linearly to zero over `watchdog_ramp` seconds
   // (and back in over soft_start when it publishes again). watchdog < 0:
@@ -165,9 +166,9 @@ struct DeviceLoopOptions {
   // of the device (full force in ten periods).
   double max_force_rate = -1.0;
   double max_torque_rate = -1.0;
-  bool multirate = true;         // false: zero-order hold of the command's wrench
+  bool multirate = true;  // false: zero-order hold of the command's wrench
   WorkspaceMap map;
-  bool realtime = false;         // ask for SCHED_FIFO (falls back, says so in stats)
+  bool realtime = false;  // ask for SCHED_FIFO (falls back, says so in stats)
   int realtime_priority = 80;
   // Per-tick log (lockstep experiments, the multirate test): capacity in
   // ticks, preallocated; 0 = off. Ticks beyond it are not logged (counted).
@@ -203,23 +204,22 @@ struct DeviceLogRow {
 
 struct DeviceLoopStats {
   uint64_t ticks = 0;
-  uint64_t read_failures = 0;     // Device::read returned false (pose held)
-  uint64_t force_clamps = 0, torque_clamps = 0;   // ticks where |F| or |T| hit the limit
-  uint64_t rate_limited = 0;      // ticks where the rate limit bit
-  uint64_t non_finite = 0;        // commands or outputs with NaN/Inf (dropped: previous output kept)
-  uint64_t watchdog_events = 0;   // stalls detected (each counted once)
-  uint64_t commands = 0;          // commands received
+  uint64_t read_failures = 0;                    // Device::read returned false (pose held)
+  uint64_t force_clamps = 0, torque_clamps = 0;  // ticks where |F| or |T| hit the limit
+  uint64_t rate_limited = 0;                     // ticks where the rate limit bit
+  uint64_t non_finite = 0;                       // commands or outputs with NaN/Inf (dropped: previous output kept)
+  uint64_t watchdog_events = 0;                  // stalls detected (each counted once)
+  uint64_t commands = 0;                         // commands received
   uint64_t log_overflow = 0;
-  uint64_t missed_deadlines = 0;  // thread mode: periods skipped because a tick overran a whole period
-  bool realtime = false;          // SCHED_FIFO granted
+  uint64_t missed_deadlines = 0;     // thread mode: periods skipped because a tick overran a whole period
+  bool realtime = false;             // SCHED_FIFO granted
   std::vector<double> period_error;  // thread mode: |actual - deadline| per tick, s (preallocated)
 };
 
 class DeviceLoop {
  public:
   // `device` and `clock` must outlive the loop. Allocates everything here.
-  DeviceLoop(Device& device, const DeviceLoopOptions& options, const Clock& clock,
-             size_t max_ticks_recorded = 1 << 20);
+  DeviceLoop(Device& device, const DeviceLoopOptions& options, const Clock& clock, size_t max_ticks_recorded = 1 << 20);
   ~DeviceLoop();
   DeviceLoop(const DeviceLoop&) = delete;
   DeviceLoop& operator=(const DeviceLoop&) = delete;
@@ -246,7 +246,7 @@ class DeviceLoop {
   bool running() const { return running_.load(); }
 
   const DeviceLoopOptions& options() const { return options_; }
-  const DeviceLoopStats& stats() const { return stats_; }   // read after stop() (or in lockstep)
+  const DeviceLoopStats& stats() const { return stats_; }  // read after stop() (or in lockstep)
   const std::vector<DeviceLogRow>& log() const { return log_; }
   size_t log_size() const { return log_size_; }
 

@@ -34,8 +34,8 @@ namespace hrt {
 using Mat6 = Eigen::Matrix<double, 6, 6>;
 
 struct RigidBody {
-  double mass = 1.0;                // kg
-  Mat3 inertia = Mat3::Identity();  // kg m^2 about the centre of mass, in the object frame
+  double mass = 1.0;                   // kg
+  Mat3 inertia = Mat3::Identity();     // kg m^2 about the centre of mass, in the object frame
   Vec3 center_of_mass = Vec3::Zero();  // object frame, m
 
   // From a bundle's mass properties at `density` (kg/m^3; the manifest's
@@ -44,10 +44,10 @@ struct RigidBody {
 };
 
 struct BodyState {
-  Vec3 x = Vec3::Zero();                                        // centre of mass, world, m
-  Eigen::Quaterniond q = Eigen::Quaterniond::Identity();        // object frame in the world
-  Vec3 v = Vec3::Zero();                                        // m/s, world
-  Vec3 w = Vec3::Zero();                                        // rad/s, world
+  Vec3 x = Vec3::Zero();                                  // centre of mass, world, m
+  Eigen::Quaterniond q = Eigen::Quaterniond::Identity();  // object frame in the world
+  Vec3 v = Vec3::Zero();                                  // m/s, world
+  Vec3 w = Vec3::Zero();                                  // rad/s, world
 
   // The pose of the object frame (hrt::Pose) for a body whose centre of mass
   // lies at c (object frame).
@@ -66,12 +66,13 @@ struct Coupling {
 };
 
 struct StepInput {
-  double h = 1e-3;                 // s
-  Vec6 contact = Vec6::Zero();     // contact wrench on A (force, torque about its centre of mass), world
+  double h = 1e-3;                        // s
+  Vec6 contact = Vec6::Zero();            // contact wrench on A (force, torque about its centre of mass), world
   Mat6 contact_stiffness = Mat6::Zero();  // d(contact wrench)/d(x, rotation), negative semi-definite
-  Pose target;                     // device pose mapped into the scene (object frame of A)
-  Vec6 target_velocity = Vec6::Zero();  // its linear velocity (of the point at A's centre of mass) and angular velocity, world
-  Vec3 gravity = Vec3::Zero();     // m/s^2 (default off: a haptic probe is held)
+  Pose target;                            // device pose mapped into the scene (object frame of A)
+  Vec6 target_velocity =
+      Vec6::Zero();             // its linear velocity (of the point at A's centre of mass) and angular velocity, world
+  Vec3 gravity = Vec3::Zero();  // m/s^2 (default off: a haptic probe is held)
 };
 
 // Rotation vector (angle times axis) of a unit quaternion, the short way
@@ -103,7 +104,7 @@ Mat6 contact_stiffness(const State& state, double k);
 struct FrictionRow {
   Eigen::Matrix<double, 2, 6> J = Eigen::Matrix<double, 2, 6>::Zero();
   Eigen::Vector2d v_b = Eigen::Vector2d::Zero();
-  double limit_static = 0.0, limit_dynamic = 0.0;  // N
+  double limit_static = 0.0, limit_dynamic = 0.0;   // N
   Eigen::Vector2d force = Eigen::Vector2d::Zero();  // out
   bool slipping = false;                            // out
 };

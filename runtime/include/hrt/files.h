@@ -40,9 +40,9 @@ struct OutputOverwritesInput : std::runtime_error {
 };
 
 // Size limits of the inputs (docs/input-contract.md).
-constexpr uint64_t kMaxSceneFileBytes = uint64_t{1} << 20;       // 1 MiB of TOML
-constexpr uint64_t kMaxTrajectoryBytes = uint64_t{1} << 30;      // 1 GiB of CSV (rows are capped too)
-constexpr uint64_t kMaxPluginBytes = uint64_t{256} << 20;        // 256 MiB shared library
+constexpr uint64_t kMaxSceneFileBytes = uint64_t{1} << 20;   // 1 MiB of TOML
+constexpr uint64_t kMaxTrajectoryBytes = uint64_t{1} << 30;  // 1 GiB of CSV (rows are capped too)
+constexpr uint64_t kMaxPluginBytes = uint64_t{256} << 20;    // 256 MiB shared library
 
 // What the file at `path` is, for messages: "a FIFO", "a directory",
 // "a character device", "a block device", "a socket", "a regular file",

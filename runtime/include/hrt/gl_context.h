@@ -24,16 +24,16 @@ struct GlError : std::runtime_error {
 };
 
 struct ContextInfo {
-  std::string platform;        // "device" or "surfaceless"
-  std::string egl_version;     // e.g. "1.5 Mesa Project"
-  std::string gl_version;      // GL_VERSION
-  std::string renderer;        // GL_RENDERER
-  std::string vendor;          // GL_VENDOR
-  std::string glsl_version;    // GL_SHADING_LANGUAGE_VERSION
+  std::string platform;      // "device" or "surfaceless"
+  std::string egl_version;   // e.g. "1.5 Mesa Project"
+  std::string gl_version;    // GL_VERSION
+  std::string renderer;      // GL_RENDERER
+  std::string vendor;        // GL_VENDOR
+  std::string glsl_version;  // GL_SHADING_LANGUAGE_VERSION
   int gl_major = 0, gl_minor = 0;
-  bool hardware = false;       // not a software rasterizer (llvmpipe, softpipe, SwiftShader)
-  bool compute_shader = false;         // GL 4.3 / ARB_compute_shader
-  bool query_buffer_object = false;    // GL 4.4 / ARB_query_buffer_object
+  bool hardware = false;             // not a software rasterizer (llvmpipe, softpipe, SwiftShader)
+  bool compute_shader = false;       // GL 4.3 / ARB_compute_shader
+  bool query_buffer_object = false;  // GL 4.4 / ARB_query_buffer_object
   int max_texture_size = 0;
   int max_compute_work_group_invocations = 0;
 };
@@ -47,12 +47,12 @@ class Context {
   Context& operator=(const Context&) = delete;
 
   const ContextInfo& info() const { return info_; }
-  void make_current();         // on the calling thread (throws GlError)
+  void make_current();  // on the calling thread (throws GlError)
 
  private:
   Context() = default;
-  void* display_ = nullptr;    // EGLDisplay
-  void* context_ = nullptr;    // EGLContext
+  void* display_ = nullptr;  // EGLDisplay
+  void* context_ = nullptr;  // EGLContext
   ContextInfo info_;
 };
 

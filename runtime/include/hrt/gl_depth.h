@@ -70,9 +70,9 @@ struct GlDepthOptions {
 // Of the last evaluate() call (times in microseconds, wall clock).
 struct GlDepthStats {
   double upload_us = 0, draw_us = 0, resolve_us = 0, reduce_us = 0, readback_us = 0, total_us = 0;
-  int batches = 0;       // render-target fills
-  int round_trips = 0;   // waits for GPU results (read-backs)
-  int tiles = 0;         // height tiles rendered
+  int batches = 0;         // render-target fills
+  int round_trips = 0;     // waits for GPU results (read-backs)
+  int tiles = 0;           // height tiles rendered
   int64_t mesh_quads = 0;  // atlas quads submitted by the mesh heights (HeightMode::mesh)
   int occlusion_queries = 0;
   uint64_t buffer_growths = 0;  // since construction

@@ -16,9 +16,9 @@
 
 #include "hrt/version.h"
 
-#include "hrt/model.h"        // Model, load_bundle, LoadOptions, BundleError
-#include "hrt/contact.h"      // Pose, Window, ContactPatch
-#include "hrt/depth.h"        // ForceOptions, HeightMode, Eq. 7-9 on one patch
+#include "hrt/model.h"    // Model, load_bundle, LoadOptions, BundleError
+#include "hrt/contact.h"  // Pose, Window, ContactPatch
+#include "hrt/depth.h"    // ForceOptions, HeightMode, Eq. 7-9 on one patch
 #include "hrt/depth_backend.h"
 #include "hrt/scene.h"        // Scene, SceneOptions, State, frame()
 #include "hrt/dynamics.h"     // probe dynamics and virtual coupling
@@ -29,4 +29,4 @@
 #include "hrt/runner.h"       // a scene file's session against its device, as `hrt run` runs it
 #include "hrt/run_config.h"   // scene files of `hrt run` (TOML)
 #include "hrt/files.h"
-#include "hrt/gl_depth.h"     // the GL depth backend (EGL, headless)
+#include "hrt/gl_depth.h"  // the GL depth backend (EGL, headless)

@@ -63,9 +63,9 @@ struct ConvexPiece {
 };
 
 struct MassProperties {
-  std::string basis;      // "full", "coarse" or "hull"
-  double density = 1.0;   // kg/m^3 used for the figures below
-  double volume = 0.0;    // m^3
+  std::string basis;                   // "full", "coarse" or "hull"
+  double density = 1.0;                // kg/m^3 used for the figures below
+  double volume = 0.0;                 // m^3
   Vec3 center_of_mass = Vec3::Zero();  // object frame, m
   Mat3 inertia = Mat3::Zero();         // about the centre of mass, kg m^2 at `density`
   bool closed = false;
@@ -104,7 +104,7 @@ struct Model {
 };
 
 struct LoadOptions {
-  bool verify_hashes = true;  // SHA-256 of every file against the manifest
+  bool verify_hashes = true;     // SHA-256 of every file against the manifest
   bool check_invariants = true;  // indices, UV range, convexity, atlas fill
   // Threads that decode atlas.exr: 0 = std::thread::hardware_concurrency(),
   // 1 = the calling thread only. More than 1 grows OpenEXR's process-wide

@@ -49,15 +49,15 @@ struct DeviceConfig {
   // the file, the pose whose target is the probe's initial pose.
   Pose start;
   bool start_set = false;
-  DeviceInfo info;                // limits (scripted and udp; a plugin reports its own)
+  DeviceInfo info;  // limits (scripted and udp; a plugin reports its own)
   // Keys of `info` the file set explicitly (a plugin's own figures are then overridden).
-  bool max_force_set = false, max_torque_set = false, max_stiffness_set = false,
-       max_angular_stiffness_set = false, dof_actuated_set = false;
+  bool max_force_set = false, max_torque_set = false, max_stiffness_set = false, max_angular_stiffness_set = false,
+       dof_actuated_set = false;
 };
 
 struct TraceConfig {
-  std::string path;         // "" = no trace
-  std::string device_log;   // per-device-tick CSV ("" = none)
+  std::string path;        // "" = no trace
+  std::string device_log;  // per-device-tick CSV ("" = none)
   // Where each path came from, for messages: the scene key or the flag.
   std::string path_key = "trace.path", device_log_key = "trace.device_log";
   // Most rows per second of session time (0: every simulation frame). Left
@@ -88,10 +88,10 @@ struct RunConfig {
   bool coupling_from_device = true;   // gains not given: default_coupling(device, probe)
   DeviceLoopOptions loop;             // period, watchdog, soft start, rate limits, multirate, workspace map
   DeviceConfig device;
-  double duration = 1.0;              // s of session time
-  bool lockstep = false;              // fixed step, no wall clock (reproducible)
-  int sim_every = 1;                  // lockstep: one simulation frame every sim_every device periods
-  double max_step = 0.02;             // real-time: longest h one frame integrates, s
+  double duration = 1.0;   // s of session time
+  bool lockstep = false;   // fixed step, no wall clock (reproducible)
+  int sim_every = 1;       // lockstep: one simulation frame every sim_every device periods
+  double max_step = 0.02;  // real-time: longest h one frame integrates, s
   // The depth backend (hrt/depth_backend.h, hrt/gl_depth.h): cpu | gl | auto
   // (parse_backend_choice); the GL backend's max search: compute | occlusion,
   // and the occlusion search's passes (1..23).
@@ -111,10 +111,10 @@ RunConfig load_run_config(const std::string& path);
 // Command-line overrides of a scene file (`hrt run`'s flags). Paths are
 // relative to the working directory.
 struct RunOverrides {
-  std::optional<double> duration;   // --duration
-  std::optional<bool> lockstep;     // --lockstep (true) / --realtime (false)
-  bool sched_fifo = false;          // --sched-fifo
-  std::string trace, device_log;    // --trace, --device-log ("" = the file's)
+  std::optional<double> duration;  // --duration
+  std::optional<bool> lockstep;    // --lockstep (true) / --realtime (false)
+  bool sched_fifo = false;         // --sched-fifo
+  std::string trace, device_log;   // --trace, --device-log ("" = the file's)
 };
 // Applies the overrides, then check_run_limits. Throws SceneFileError whose
 // key is the flag ("--duration") when a flag's value is the problem.

@@ -74,13 +74,13 @@ class Runner {
   // After open():
   Session& session();
   const Session& session() const;
-  Device& device();                      // as opened (fault(), a UdpDevice's counters)
+  Device& device();  // as opened (fault(), a UdpDevice's counters)
   // The device as a VirtualDevice (`[device] type = "virtual"`: set_pose()),
   // or nullptr for the other kinds.
   VirtualDevice* virtual_device();
   const DeviceInfo& device_info() const;  // the limits in force (a plugin's own, overridden by the file)
   const DeviceLoop& loop() const;
-  const DeviceTarget& target() const;    // the device target of the last frame
+  const DeviceTarget& target() const;  // the device target of the last frame
   // Device ticks of the whole duration (lockstep: duration / period, rounded).
   size_t ticks_total() const;
   // Real time: the wall time between successive frames (s), for the summary.

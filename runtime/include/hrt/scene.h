@@ -158,11 +158,11 @@ struct PiecePair {
   int object_b = -1;
   int piece_a = -1;
   int piece_b = -1;
-  double distance = 0.0;   // signed, m; < 0: the coarse pieces overlap by -distance
-  double tolerance = 0.0;  // the pair's tolerance, m
-  Vec3 p_a = Vec3::Zero();  // world: closest point on A's piece (deepest point when overlapping)
-  Vec3 p_b = Vec3::Zero();  // world: closest point on B's piece
-  Vec3 n = Vec3::UnitZ();   // unit, world, from A into B
+  double distance = 0.0;         // signed, m; < 0: the coarse pieces overlap by -distance
+  double tolerance = 0.0;        // the pair's tolerance, m
+  Vec3 p_a = Vec3::Zero();       // world: closest point on A's piece (deepest point when overlapping)
+  Vec3 p_b = Vec3::Zero();       // world: closest point on B's piece
+  Vec3 n = Vec3::UnitZ();        // unit, world, from A into B
   bool fallback_normal = false;  // points (nearly) coincided: n from B's face planes
 };
 
@@ -181,7 +181,7 @@ struct PatchTrack {
   Vec3 n_local = Vec3::UnitZ();
   Vec3 u_local = Vec3::UnitX();
   double cell = 0.0;
-  double side = 0.0;  // window side N * cell, m
+  double side = 0.0;    // window side N * cell, m
   bool warned = false;  // undersampling warning counted for this patch's lifetime
 };
 
@@ -195,18 +195,18 @@ struct StageTimings {
 
 // Counters, accumulated over frames (never printed by frame()).
 struct Warnings {
-  uint64_t fallback_normals = 0;    // piece pairs whose closest points coincided
-  uint64_t fcl_failures = 0;        // FCL threw on a pair (the pair was skipped)
-  uint64_t pairs_grown = 0;         // the pair buffer (or the pool's narrow-phase list) had to grow (an allocation)
-  uint64_t patches_dropped = 0;     // patches beyond ClusterOptions::max_patches
-  uint64_t empty_windows = 0;       // A's and B's triangles did not overlap in (u, v)
-  uint64_t refused_patches = 0;     // n disagreed with the pieces (or a non-finite result): no force
-  uint64_t clamped_patches = 0;     // delta above the pieces' bound: the force of the bound
+  uint64_t fallback_normals = 0;  // piece pairs whose closest points coincided
+  uint64_t fcl_failures = 0;      // FCL threw on a pair (the pair was skipped)
+  uint64_t pairs_grown = 0;       // the pair buffer (or the pool's narrow-phase list) had to grow (an allocation)
+  uint64_t patches_dropped = 0;   // patches beyond ClusterOptions::max_patches
+  uint64_t empty_windows = 0;     // A's and B's triangles did not overlap in (u, v)
+  uint64_t refused_patches = 0;   // n disagreed with the pieces (or a non-finite result): no force
+  uint64_t clamped_patches = 0;   // delta above the pieces' bound: the force of the bound
   // Deep penetration (src/contact/frame.cpp, "Deep fallback"): per frame and
   // object, a penalty from the convex pieces replaced the patches' force.
   uint64_t deep_fallbacks = 0;         // fallback wrenches applied (one per object and frame at most)
   uint64_t deep_fallback_patches = 0;  // patches whose force a fallback replaced (refused deep, or a flipped pair)
-  DepthWarnings depth;              // undersampled patches, uncovered FD configurations
+  DepthWarnings depth;                 // undersampled patches, uncovered FD configurations
 };
 
 struct State {
@@ -216,17 +216,17 @@ struct State {
   State(const State&) = delete;
   State& operator=(const State&) = delete;
 
-  std::vector<Pose> poses;        // one per object, [0] = A (set these before frame())
-  std::vector<Vec6> velocities;   // placeholder for a simulation (twist per object); frame() ignores it
+  std::vector<Pose> poses;       // one per object, [0] = A (set these before frame())
+  std::vector<Vec6> velocities;  // placeholder for a simulation (twist per object); frame() ignores it
 
-  std::vector<PiecePair> pairs;   // capacity; the first num_pairs are this frame's
+  std::vector<PiecePair> pairs;  // capacity; the first num_pairs are this frame's
   int num_pairs = 0;
   std::vector<ContactPatch> patches;  // capacity max_patches; the first num_patches are valid
   int num_patches = 0;
   std::vector<uint64_t> patch_ids;    // patch_ids[k]: tracking id of patches[k]
   std::vector<int> patch_first_pair;  // internal: pairs of patch k, grouped (see pair_order)
   std::vector<int> patch_pair_count;
-  std::vector<int> pair_order;        // pair indices grouped by patch
+  std::vector<int> pair_order;  // pair indices grouped by patch
 
   Vec3 force = Vec3::Zero();   // net force of the patches on A, world, N
   Vec3 torque = Vec3::Zero();  // net torque of the patches on A about its centre of mass, world, N m
@@ -256,8 +256,8 @@ struct State {
   std::vector<PatchTrack> tracks, next_tracks;
   int num_tracks = 0;
   uint64_t next_track_id = 1;
-  std::vector<int> uf_parent;      // per pair (capacity of `pairs`)
-  std::vector<double> pair_weight;  // per pair
+  std::vector<int> uf_parent;        // per pair (capacity of `pairs`)
+  std::vector<double> pair_weight;   // per pair
   std::vector<double> pair_overlap;  // per pair: its pieces' overlap along its own n (safety checks)
   // Per pair (deep fallback, frame.cpp): the axis its penetration is judged
   // along (its n, or the remembered one when n flipped), the pieces' overlap
@@ -265,8 +265,8 @@ struct State {
   std::vector<Vec3> pair_axis;
   std::vector<double> pair_axis_overlap;
   std::vector<char> pair_flipped;
-  std::vector<uint64_t> pair_key;   // (object, piece_a, piece_b)
-  std::vector<int> pair_sort;       // pair indices sorted by key
+  std::vector<uint64_t> pair_key;  // (object, piece_a, piece_b)
+  std::vector<int> pair_sort;      // pair indices sorted by key
   // The pairs of the last frame, sorted by key, with the axis each was judged
   // along, in B's frame (a pair present in consecutive frames keeps it when
   // its n turns by more than 90 degrees: the probe went past the middle of B's piece).
@@ -277,35 +277,35 @@ struct State {
   // frame then (a contact that starts deep is judged by which side A came from).
   std::vector<char> free_last;
   std::vector<Pose> free_pose;
-  std::vector<int> pair_cluster;    // per pair: cluster id
+  std::vector<int> pair_cluster;  // per pair: cluster id
   std::vector<double> cluster_weight;
-  std::vector<int> cluster_patch;   // cluster -> patch index, -1 when dropped
+  std::vector<int> cluster_patch;  // cluster -> patch index, -1 when dropped
   std::vector<int> cluster_order;
   std::vector<int> candidates;
   std::vector<uint32_t> face_mark_a, face_mark_b;  // per coarse face: stamp of the last patch that took it
   uint32_t face_stamp = 0;
   std::vector<uint32_t> piece_mark_a, piece_mark_b;
-  std::vector<int> piece_list_a, piece_list_b;     // unique pieces of one patch
+  std::vector<int> piece_list_a, piece_list_b;         // unique pieces of one patch
   std::vector<uint32_t> safety_mark_a, safety_mark_b;  // per piece: stamp of the patch whose triangles it lists
   uint32_t safety_stamp = 0;
   std::vector<uint32_t> vertex_stamp_a, vertex_stamp_b;  // per coarse vertex: stamp of its cached projection
   std::vector<double> vertex_proj_a, vertex_proj_b;      // 3 per coarse vertex: (u, v) and height of one patch
   std::vector<double> tri_box_a, tri_box_b;              // 4 per triangle of one patch: its (u, v) box
-  std::vector<char> track_taken;                   // per previous track, during matching
-  std::vector<double> target_cell;                 // per object: auto-resolution texel target (0 = none)
+  std::vector<char> track_taken;                         // per previous track, during matching
+  std::vector<double> target_cell;                       // per object: auto-resolution texel target (0 = none)
   DepthScratch depth;
   // Where the depth query runs (hrt/depth_backend.h; non-owning, the caller
   // keeps it alive): null means the CPU code inline, one patch at a time.
   // With a backend, frame() hands it all patches of the frame at once.
   DepthBackend* depth_backend = nullptr;
-  std::vector<DepthJob> depth_jobs;            // capacity max_patches (frame() with a backend)
-  std::vector<DepthGradient> depth_results;    // capacity max_patches
+  std::vector<DepthJob> depth_jobs;          // capacity max_patches (frame() with a backend)
+  std::vector<DepthGradient> depth_results;  // capacity max_patches
   // SceneOptions::threads > 1: the pool and one DepthScratch per pool thread
   // but the caller's (which uses `depth`), reserved like it.
   std::unique_ptr<TaskPool> pool;
   std::vector<DepthScratch> pool_depth;
-  std::vector<int> pool_order;      // capacity max_patches: the patches, costliest first
-  std::vector<double> pool_cost;    // capacity max_patches: their cost estimates
+  std::vector<int> pool_order;    // capacity max_patches: the patches, costliest first
+  std::vector<double> pool_cost;  // capacity max_patches: their cost estimates
   // With the pool, detect_pairs' narrow phase: the piece pairs the box tests
   // passed, in the serial loop's order, and their results.
   struct NarrowJob {
@@ -317,7 +317,7 @@ struct State {
   };
   std::vector<NarrowJob> narrow_jobs;
   std::vector<Eigen::Isometry3d> narrow_b_from_a;  // per object, this frame
-  void resize_pair_scratch(size_t n);  // the per-pair scratch above, for n pairs
+  void resize_pair_scratch(size_t n);              // the per-pair scratch above, for n pairs
 };
 
 // One haptic frame: collision -> clustering -> per-patch wrench -> sums.

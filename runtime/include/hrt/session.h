@@ -48,16 +48,16 @@ namespace hrt {
 
 // Contact material of a pair (A, B), or the scene's default.
 struct Material {
-  double stiffness = 0.0;             // k, N/m; 0: the scene's force.stiffness
-  double mu_static = 0.0;             // Coulomb coefficients (mu_dynamic <= mu_static)
+  double stiffness = 0.0;  // k, N/m; 0: the scene's force.stiffness
+  double mu_static = 0.0;  // Coulomb coefficients (mu_dynamic <= mu_static)
   double mu_dynamic = 0.0;
 };
 
 struct SessionOptions {
-  double density = 1000.0;        // kg/m^3 of the probe (mass properties scale with it)
-  Vec3 gravity = Vec3::Zero();    // m/s^2; off by default: a haptic probe is held
-  Coupling coupling;              // gains (N/m, N s/m, N m/rad, N m s/rad); see default_coupling
-  bool coupling_enabled = true;   // false: a free body (tests, the tilted-plate experiment)
+  double density = 1000.0;       // kg/m^3 of the probe (mass properties scale with it)
+  Vec3 gravity = Vec3::Zero();   // m/s^2; off by default: a haptic probe is held
+  Coupling coupling;             // gains (N/m, N s/m, N m/rad, N m s/rad); see default_coupling
+  bool coupling_enabled = true;  // false: a free body (tests, the tilted-plate experiment)
   // Friction: off by default. Sec. 6's roughness experiments (Fig. 7, 8) are
   // frictionless, and a stick-slip anchor needs a material the user chose
   // (mu); with it on, textures stop feeling like ice.
@@ -80,8 +80,8 @@ struct SessionOptions {
   // further, it was past the slab and felt nothing).
   double max_prediction = 1e-3;
   // Caps of the device-side stiffness K_eff (the device's limits).
-  double max_device_stiffness = 2000.0;          // N/m
-  double max_device_angular_stiffness = 5.0;     // N m/rad
+  double max_device_stiffness = 2000.0;       // N/m
+  double max_device_angular_stiffness = 5.0;  // N m/rad
 };
 
 // Coupling gains from a device's limits: k_lin = its max_stiffness, k_ang =
@@ -94,18 +94,18 @@ Coupling default_coupling(const DeviceInfo& device, const RigidBody& probe);
 struct SessionFrame {
   double t = 0.0, h = 0.0;
   uint64_t frame = 0;
-  Pose target;                      // coupling target (probe object frame)
-  Pose probe;                       // probe pose after the step
-  Vec6 contact = Vec6::Zero();      // texture contact wrench on A (after materials and fades), torque about c_A
-  Vec6 friction = Vec6::Zero();     // friction wrench on A
-  Vec6 coupling = Vec6::Zero();     // coupling wrench on A (after the step)
-  Vec6 device = Vec6::Zero();       // W0 of the device command (scene frame)
+  Pose target;                   // coupling target (probe object frame)
+  Pose probe;                    // probe pose after the step
+  Vec6 contact = Vec6::Zero();   // texture contact wrench on A (after materials and fades), torque about c_A
+  Vec6 friction = Vec6::Zero();  // friction wrench on A
+  Vec6 coupling = Vec6::Zero();  // coupling wrench on A (after the step)
+  Vec6 device = Vec6::Zero();    // W0 of the device command (scene frame)
   int patches = 0, sticking = 0, slipping = 0, refused = 0, fading = 0;
-  int deep = 0;                     // objects whose deep fallback acted (counted in State::warnings too)
+  int deep = 0;  // objects whose deep fallback acted (counted in State::warnings too)
   double kinetic = 0.0, coupling_energy = 0.0, contact_energy = 0.0, gravity_energy = 0.0;
-  double friction_energy = 0.0;     // 0: velocity-level friction stores no energy (the column is kept)
-  StageTimings timings;             // of frame()
-  double dynamics_us = 0.0;         // materials, friction, step, command
+  double friction_energy = 0.0;  // 0: velocity-level friction stores no energy (the column is kept)
+  StageTimings timings;          // of frame()
+  double dynamics_us = 0.0;      // materials, friction, step, command
 };
 
 class Session {
@@ -135,7 +135,7 @@ class Session {
   const SessionOptions& options() const { return options_; }
 
  private:
-  struct PatchMemory {       // per tracked patch id, in A's and B's frames
+  struct PatchMemory {  // per tracked patch id, in A's and B's frames
     uint64_t id = 0;
     int object_b = -1;
     bool active = false;
@@ -153,7 +153,7 @@ class Session {
   BodyState body_state_;
   std::vector<Pose> initial_;
   std::vector<const Trajectory*> trajectories_;
-  std::vector<PatchMemory> memory_;  // capacity 2 x max_patches
+  std::vector<PatchMemory> memory_;    // capacity 2 x max_patches
   std::vector<FrictionRow> friction_;  // one per patch with friction (capacity max_patches)
   std::vector<int> friction_patch_;
   size_t num_friction_ = 0;

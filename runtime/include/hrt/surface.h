@@ -69,8 +69,8 @@ struct SurfaceMap {
   // of a 32-bit load (src/depth/resolve_simd.cpp).
   std::vector<uint8_t> quad_ok;
   static constexpr size_t kQuadOkPadding = 3;
-  double jump = 0.0;            // m: kJumpTexels * texel_size (0: no texel size known, no jump test)
-  uint64_t cut_quads = 0;       // quads with a filled corner cut by the jump test (for reports)
+  double jump = 0.0;       // m: kJumpTexels * texel_size (0: no texel size known, no jump test)
+  uint64_t cut_quads = 0;  // quads with a filled corner cut by the jump test (for reports)
   // Blocks of kQuadBlock x kQuadBlock quads (block (bi, bj) holds the quads
   // with top-left texel in [bi B, bi B + B) x [bj B, bj B + B)), row-major
   // blocks_w x blocks_h: the object-frame box of the corners of the block's
@@ -104,9 +104,9 @@ void prepare_surface_map(Model& model);
 // no surface in a cut quad, so its widest edge bounds the hole there
 // (docs/bundle-format.md "Heights over a texel's square"). hrt check prints it.
 struct SurfaceCoverage {
-  uint64_t quads = 0;      // quads with their centre inside a UV triangle
-  uint64_t cut = 0;        // of those, not usable
-  double widest_cut = 0.0; // m: the longest edge of a cut quad
+  uint64_t quads = 0;       // quads with their centre inside a UV triangle
+  uint64_t cut = 0;         // of those, not usable
+  double widest_cut = 0.0;  // m: the longest edge of a cut quad
 };
 // O(atlas texels + faces). Needs model.surface (prepare_surface_map).
 SurfaceCoverage surface_coverage(const Model& model);

@@ -35,13 +35,13 @@ constexpr uint8_t kFlagRestart = 0x01;  // pose: a new stream starts here (its s
 
 enum class Result {
   ok = 0,
-  bad_size,        // shorter than a header, or not the exact size of its type (and count)
-  bad_magic,       // not "HRTU"
-  bad_version,     // a version other than kVersion
-  bad_type,        // unknown type, or not the type the caller parses
-  non_finite,      // a NaN or an infinity in a double field (timestamp included)
-  bad_value,       // a zero quaternion (norm < 1e-6), an object count above kMaxObjectsPerPacket,
-                   // an object index >= total
+  bad_size,          // shorter than a header, or not the exact size of its type (and count)
+  bad_magic,         // not "HRTU"
+  bad_version,       // a version other than kVersion
+  bad_type,          // unknown type, or not the type the caller parses
+  non_finite,        // a NaN or an infinity in a double field (timestamp included)
+  bad_value,         // a zero quaternion (norm < 1e-6), an object count above kMaxObjectsPerPacket,
+                     // an object index >= total
   buffer_too_small,  // parse: more objects than the caller's array; encode: output capacity
 };
 const char* to_string(Result r) noexcept;
@@ -63,7 +63,7 @@ struct PoseMessage {
 
 struct WrenchMessage {
   Header header;
-  uint32_t answers = 0;  // sequence of the newest pose packet hrt had read when it computed this
+  uint32_t answers = 0;          // sequence of the newest pose packet hrt had read when it computed this
   double force[3] = {0, 0, 0};   // N, device frame
   double torque[3] = {0, 0, 0};  // N m, device frame
 };
@@ -96,8 +96,8 @@ Result parse_object_poses(const uint8_t* data, size_t size, ObjectPosesMessage& 
 Result encode_pose(const PoseMessage& m, uint8_t* out, size_t capacity, size_t& written) noexcept;
 Result encode_wrench(const WrenchMessage& m, uint8_t* out, size_t capacity, size_t& written) noexcept;
 // m.count objects from `objects`; m.total must exceed every index.
-Result encode_object_poses(const ObjectPosesMessage& m, const ObjectPose* objects, uint8_t* out,
-                           size_t capacity, size_t& written) noexcept;
+Result encode_object_poses(const ObjectPosesMessage& m, const ObjectPose* objects, uint8_t* out, size_t capacity,
+                           size_t& written) noexcept;
 
 // True when `a` is later than `b` in serial-number arithmetic (RFC 1982):
 // (a - b) mod 2^32 in [1, 2^31). The sequence wraps from 2^32 - 1 to 0 and stays

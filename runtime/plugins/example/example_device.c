@@ -77,10 +77,14 @@ static void* example_create(const char* config, char* error, size_t error_size) 
       const char* val = eq + 1;
       if (strcmp(key, "path") == 0) {
         ok = 1;
-        if (strcmp(val, "circle") == 0) d->path = 0;
-        else if (strcmp(val, "line") == 0) d->path = 1;
-        else if (strcmp(val, "still") == 0) d->path = 2;
-        else ok = 0;
+        if (strcmp(val, "circle") == 0)
+          d->path = 0;
+        else if (strcmp(val, "line") == 0)
+          d->path = 1;
+        else if (strcmp(val, "still") == 0)
+          d->path = 2;
+        else
+          ok = 0;
       } else if (strcmp(key, "radius") == 0) {
         ok = parse_double(val, &d->radius) && d->radius >= 0;
       } else if (strcmp(key, "period") == 0) {
@@ -95,8 +99,10 @@ static void* example_create(const char* config, char* error, size_t error_size) 
         ok = val[0] != '\0';
         snprintf(d->name, sizeof d->name, "%s", val);
       } else {
-        snprintf(error, error_size, "example: unknown config key '%s' (path, radius, period, z, clutch_after, "
-                 "max_force, name)", key);
+        snprintf(error, error_size,
+                 "example: unknown config key '%s' (path, radius, period, z, clutch_after, "
+                 "max_force, name)",
+                 key);
         free(copy);
         free(d);
         return NULL;
@@ -178,8 +184,11 @@ static void example_write(void* handle, double t, const double wrench[6]) {
 }
 
 static const hrt_device_plugin kTable = {
-    HRT_DEVICE_PLUGIN_ABI, sizeof(hrt_device_plugin), example_create, example_destroy, example_info,
-    example_open,          example_close,             example_read,   example_write,
+    HRT_DEVICE_PLUGIN_ABI, sizeof(hrt_device_plugin),
+    example_create,        example_destroy,
+    example_info,          example_open,
+    example_close,         example_read,
+    example_write,
 };
 
 HRT_PLUGIN_EXPORT const hrt_device_plugin* hrt_device_plugin_v1(void) { return &kTable; }

@@ -30,9 +30,10 @@ void make_chunks(const std::vector<Vec3>& lo, const std::vector<Vec3>& hi, int c
   }
   int ax = 0;
   (chi - clo).maxCoeff(&ax);
-  std::stable_sort(order.begin(), order.end(),
-                   [&](int x, int y) { return lo[static_cast<size_t>(x)][ax] + hi[static_cast<size_t>(x)][ax] <
-                                              lo[static_cast<size_t>(y)][ax] + hi[static_cast<size_t>(y)][ax]; });
+  std::stable_sort(order.begin(), order.end(), [&](int x, int y) {
+    return lo[static_cast<size_t>(x)][ax] + hi[static_cast<size_t>(x)][ax] <
+           lo[static_cast<size_t>(y)][ax] + hi[static_cast<size_t>(y)][ax];
+  });
   for (size_t k = 0; k < n; k += static_cast<size_t>(chunk)) {
     ModelGeometry::SatChunk ch;
     ch.first = static_cast<int>(k);
@@ -56,7 +57,8 @@ void build_piece_sat(const ConvexPiece& piece, const std::vector<ModelGeometry::
   links.reserve(piece.faces.size() * 6);
   for (const Tri& f : piece.faces)
     for (int c = 0; c < 3; ++c) {
-      const int i = static_cast<int>(f[static_cast<size_t>(c)]), j = static_cast<int>(f[static_cast<size_t>((c + 1) % 3)]);
+      const int i = static_cast<int>(f[static_cast<size_t>(c)]),
+                j = static_cast<int>(f[static_cast<size_t>((c + 1) % 3)]);
       links.emplace_back(i, j);
       links.emplace_back(j, i);
     }
@@ -141,9 +143,9 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
         g->planes[p].push_back(Eigen::Vector4d(nrm.x(), nrm.y(), nrm.z(), nrm.dot(a)));
       }
     }
-    g->convex.push_back(std::make_shared<fcl::Convexd>(
-        std::shared_ptr<const std::vector<Vec3>>(verts), static_cast<int>(piece.faces.size()),
-        std::shared_ptr<const std::vector<int>>(faces), false));
+    g->convex.push_back(std::make_shared<fcl::Convexd>(std::shared_ptr<const std::vector<Vec3>>(verts),
+                                                       static_cast<int>(piece.faces.size()),
+                                                       std::shared_ptr<const std::vector<int>>(faces), false));
     g->piece_bounds.push_back(bounds_of(piece.vertices));
     all.insert(all.end(), piece.vertices.begin(), piece.vertices.end());
   }
@@ -171,8 +173,7 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
       const uint64_t i = key >> 32, j = key & 0xffffffffu;
       if (i > j) continue;  // each undirected edge once, from its (i < j) half
       const uint64_t rkey = (j << 32) | i;
-      auto it = std::lower_bound(half.begin(), half.end(), rkey,
-                                 [](const auto& x, uint64_t k) { return x.first < k; });
+      auto it = std::lower_bound(half.begin(), half.end(), rkey, [](const auto& x, uint64_t k) { return x.first < k; });
       if (it == half.end() || it->first != rkey) continue;
       if (n1.dot(it->second) > 1.0 - 1e-12) continue;  // coplanar: not an edge of the hull
       g->edges[p].push_back({piece.vertices[i], piece.vertices[j], n1, it->second});
@@ -187,7 +188,8 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
   {
     std::vector<int> fill(g->face_piece_offset.begin(), g->face_piece_offset.end() - 1);
     for (size_t p = 0; p < np; ++p)
-      for (uint32_t f : model.pieces[p].coarse_faces) g->face_pieces[static_cast<size_t>(fill[f]++)] = static_cast<int>(p);
+      for (uint32_t f : model.pieces[p].coarse_faces)
+        g->face_pieces[static_cast<size_t>(fill[f]++)] = static_cast<int>(p);
   }
   g->face_spheres.reserve(model.faces.size());
   for (const Tri& f : model.faces) {
@@ -224,9 +226,8 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
       }
       int ax = 0;
       (hi - lo).maxCoeff(&ax);
-      std::stable_sort(list.begin(), list.end(), [&](uint32_t x, uint32_t y) {
-        return g->face_spheres[x][ax] < g->face_spheres[y][ax];
-      });
+      std::stable_sort(list.begin(), list.end(),
+                       [&](uint32_t x, uint32_t y) { return g->face_spheres[x][ax] < g->face_spheres[y][ax]; });
       bucket.first_chunk = static_cast<int>(g->chunks.size());
       for (size_t k = 0; k < list.size(); k += ModelGeometry::kChunkFaces) {
         ModelGeometry::FaceChunk ch;
@@ -456,8 +457,8 @@ bool sphere_meets_box(const Eigen::Vector4d& s, const Vec3& lo, const Vec3& hi) 
 // d = -depth (d > 0 when a face axis separates them: touching within GJK's
 // tolerance), n (B frame) from A into B, and p_a, p_b on the deepest
 // features (p_a - p_b = depth n).
-bool sat_depth(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a, const ModelGeometry& gb,
-               int pb, double eps, double& d, Vec3& p_a, Vec3& p_b, Vec3& n) {
+bool sat_depth(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a, const ModelGeometry& gb, int pb,
+               double eps, double& d, Vec3& p_a, Vec3& p_b, Vec3& n) {
   const auto ia = static_cast<size_t>(pa), ib = static_cast<size_t>(pb);
   const std::vector<Vec3>& va = ga.model->pieces[ia].vertices;
   const std::vector<Vec3>& vb = gb.model->pieces[ib].vertices;
@@ -609,9 +610,8 @@ bool sat_depth(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_
 
 }  // namespace
 
-bool piece_distance(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a, const ModelGeometry& gb,
-                    int pb, double distance_tolerance, double& d, Vec3& p_a, Vec3& p_b, Vec3& n,
-                    bool& fallback) {
+bool piece_distance(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a, const ModelGeometry& gb, int pb,
+                    double distance_tolerance, double& d, Vec3& p_a, Vec3& p_b, Vec3& n, bool& fallback) {
   // Two stages, neither of which reaches an EPA:
   //  1. FCL's GJK distance without signed distance (GST_LIBCCD, the same GJK
   //     as before for separated pieces); it stops at "intersecting".
@@ -752,7 +752,8 @@ Scene::Scene(std::vector<const Model*> objects, const SceneOptions& options)
   if (!(c.track_radius_factor >= 0)) throw std::invalid_argument("track_radius_factor must be >= 0");
   if (c.auto_resolution && (c.max_resolution < f.resolution || c.max_resolution > kMaxResolution))
     throw std::invalid_argument("max_resolution must be between the resolution (" + std::to_string(f.resolution) +
-                                ") and " + std::to_string(kMaxResolution) + ", got " + std::to_string(c.max_resolution));
+                                ") and " + std::to_string(kMaxResolution) + ", got " +
+                                std::to_string(c.max_resolution));
   if (!(c.auto_cell_fraction > 0 && c.auto_cell_fraction <= 1))
     throw std::invalid_argument("auto_cell_fraction must be in (0, 1]");
   if (!std::isfinite(options_.collision.margin)) throw std::invalid_argument("margin must be finite");
@@ -765,8 +766,7 @@ Scene::Scene(std::vector<const Model*> objects, const SceneOptions& options)
     double margin = options_.collision.margin;
     if (margin < 0) {
       double da = A.quality.bbox_diagonal > 0 ? A.quality.bbox_diagonal : world_->geometry(0).scale;
-      double db = B.quality.bbox_diagonal > 0 ? B.quality.bbox_diagonal
-                                              : world_->geometry(static_cast<int>(b)).scale;
+      double db = B.quality.bbox_diagonal > 0 ? B.quality.bbox_diagonal : world_->geometry(static_cast<int>(b)).scale;
       margin = options_.collision.auto_margin_fraction * std::min(da, db);
     }
     tolerance_[b] = A.quality.displacement_outward + A.quality.hull_deviation + B.quality.displacement_outward +
@@ -897,8 +897,8 @@ void detect_pairs(const Scene& scene, State& state) {
   int num_jobs = 0;
 
   // A pair the narrow phase evaluated: kept when within the tolerance.
-  auto keep = [&](int b, int pa, int pb, double tol, bool ok, double d, const Vec3& p_a, const Vec3& p_b,
-                  const Vec3& n, bool fallback) {
+  auto keep = [&](int b, int pa, int pb, double tol, bool ok, double d, const Vec3& p_a, const Vec3& p_b, const Vec3& n,
+                  bool fallback) {
     if (!ok) {
       ++state.warnings.fcl_failures;
       return;
@@ -1004,8 +1004,8 @@ void detect_pairs(const Scene& scene, State& state) {
     State::NarrowJob& job = state.narrow_jobs[static_cast<size_t>(k)];
     job.fallback = false;
     job.ok = collision::piece_distance(ga, job.piece_a, state.narrow_b_from_a[static_cast<size_t>(job.b)],
-                                       world.geometry(job.b), job.piece_b, job.gjk_tolerance, job.d, job.p_a,
-                                       job.p_b, job.n, job.fallback);
+                                       world.geometry(job.b), job.piece_b, job.gjk_tolerance, job.d, job.p_a, job.p_b,
+                                       job.n, job.fallback);
   };
   state.pool->run(num_jobs, narrow);
   for (int k = 0; k < num_jobs; ++k) {

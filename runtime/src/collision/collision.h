@@ -37,8 +37,8 @@ struct ModelGeometry {
   const Model* model = nullptr;
   std::vector<std::shared_ptr<fcl::Convexd>> convex;  // one per piece
   std::vector<Bounds> piece_bounds;
-  Bounds bounds;            // all pieces together
-  double scale = 0.0;       // bbox diagonal of the pieces, m
+  Bounds bounds;       // all pieces together
+  double scale = 0.0;  // bbox diagonal of the pieces, m
   // Piece adjacency (CSR), from the bundle alone: pieces p, q are adjacent
   // when their coarse-face lists share a coarse vertex, or when a face plane
   // of one touches the other from outside within adjacency_tolerance (pieces
@@ -59,12 +59,12 @@ struct ModelGeometry {
   // by dominant normal axis (+-x, +-y, +-z) with a normal cone, each bucket in
   // chunks of up to kChunkFaces spatially sorted faces with their box.
   struct FaceChunk {
-    Vec3 lo, hi;      // box of the chunk's face spheres
+    Vec3 lo, hi;       // box of the chunk's face spheres
     int first, count;  // into face_order
   };
   struct FaceBucket {
-    Vec3 axis;           // unit mean normal
-    double half_angle;   // every face normal is within this angle of axis (rad)
+    Vec3 axis;          // unit mean normal
+    double half_angle;  // every face normal is within this angle of axis (rad)
     int first_chunk, num_chunks;
   };
   static constexpr int kChunkFaces = 16;
@@ -93,8 +93,8 @@ struct ModelGeometry {
   };
   static constexpr int kSatChunk = 16;
   struct PieceSat {
-    std::vector<int> adj_offset, adj;            // vertex adjacency (CSR)
-    std::vector<Eigen::Vector4d> face_sphere;    // per plane: centre xyz, radius
+    std::vector<int> adj_offset, adj;          // vertex adjacency (CSR)
+    std::vector<Eigen::Vector4d> face_sphere;  // per plane: centre xyz, radius
     std::vector<SatChunk> face_chunks, edge_chunks;
     std::vector<int> face_order, edge_order;
   };
@@ -129,9 +129,8 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
 // points coincided and n came from B's face planes. Separated pieces: FCL's
 // GJK distance; intersecting ones: the exact separating-axis penetration
 // depth (see collision.cpp).
-bool piece_distance(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a,
-                    const ModelGeometry& gb, int pb, double distance_tolerance, double& d, Vec3& p_a,
-                    Vec3& p_b, Vec3& n, bool& fallback);
+bool piece_distance(const ModelGeometry& ga, int pa, const Eigen::Isometry3d& b_from_a, const ModelGeometry& gb, int pb,
+                    double distance_tolerance, double& d, Vec3& p_a, Vec3& p_b, Vec3& n, bool& fallback);
 
 // Support value of piece `piece` along `dir` (object frame): the largest
 // dir . x over the piece's vertices, by hill climbing on its vertex graph

@@ -623,10 +623,14 @@ void cluster_pairs(const Scene& scene, State& st) {
     const double r_est = 1.1 * ((c_a - center_w).norm() + 0.7072 * extent);
     double pad_fixed = 0.0;
     int pad_cells = 0;
-    if (fopt.lin_step > 0) pad_fixed = std::max(pad_fixed, fopt.lin_step);
-    else pad_cells = 1;
-    if (fopt.ang_step > 0) pad_fixed = std::max(pad_fixed, fopt.ang_step * r_est);
-    else pad_cells = 1;
+    if (fopt.lin_step > 0)
+      pad_fixed = std::max(pad_fixed, fopt.lin_step);
+    else
+      pad_cells = 1;
+    if (fopt.ang_step > 0)
+      pad_fixed = std::max(pad_fixed, fopt.ang_step * r_est);
+    else
+      pad_cells = 1;
     // Centring the window and snapping its origin down to the lattice costs
     // up to one texel on either side, hence
     //   N cell >= extent + 2 (pad_fixed + pad_cells cell) + 2 cell.
@@ -656,9 +660,7 @@ void cluster_pairs(const Scene& scene, State& st) {
     const double pad = pad_fixed + pad_cells * cell;
     const double wlo_u = lo_u - pad, whi_u = lo_u + side + pad;
     const double wlo_v = lo_v - pad, whi_v = lo_v + side + pad;
-    auto outside = [&](const double* bx) {
-      return bx[2] < wlo_u || bx[0] > whi_u || bx[3] < wlo_v || bx[1] > whi_v;
-    };
+    auto outside = [&](const double* bx) { return bx[2] < wlo_u || bx[0] > whi_u || bx[3] < wlo_v || bx[1] > whi_v; };
     {
       size_t w = 0;
       for (size_t k = 0; k < patch.tris_a.size(); ++k)

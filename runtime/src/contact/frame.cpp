@@ -481,9 +481,8 @@ void compute_pair_overlaps(const Scene& scene, State& st) {
   const Eigen::Isometry3d world_from_a = st.poses[0].iso();
   for (int i = 0; i < st.num_pairs; ++i) {
     const PiecePair& p = st.pairs[static_cast<size_t>(i)];
-    st.pair_overlap[static_cast<size_t>(i)] =
-        pair_axis_overlap(ga, world_from_a, scene.world().geometry(p.object_b),
-                          st.poses[static_cast<size_t>(p.object_b)].iso(), p);
+    st.pair_overlap[static_cast<size_t>(i)] = pair_axis_overlap(ga, world_from_a, scene.world().geometry(p.object_b),
+                                                                st.poses[static_cast<size_t>(p.object_b)].iso(), p);
   }
 }
 
@@ -507,8 +506,8 @@ void apply_patch_safety(const Scene& scene, State& st, int k) {
   // so no force either way; refusing says why (the gratings' side pairs,
   // whose separating axes are cut-face normals 70-90 degrees off the plates').
   if (!patch.facing) refused = true;
-  if (!std::isfinite(patch.delta) || !patch.grad.allFinite() || !patch.force.allFinite() ||
-      !patch.torque.allFinite() || !std::isfinite(bound))
+  if (!std::isfinite(patch.delta) || !patch.grad.allFinite() || !patch.force.allFinite() || !patch.torque.allFinite() ||
+      !std::isfinite(bound))
     refused = true;
   patch.delta_bound = std::isfinite(bound) ? bound : 0.0;
   patch.refused = refused;
@@ -585,7 +584,8 @@ void frame(const Scene& scene, State& st) {
       const double texels = static_cast<double>(p.window.resolution) * p.window.resolution;
       order[k] = k;
       cost[k] = static_cast<double>(p.tris_a.size() + p.tris_b.size() + p.reach_a.size() + p.reach_b.size()) *
-                    kTexelsPerFace + texels;
+                    kTexelsPerFace +
+                texels;
     }
     std::sort(order, order + st.num_patches,
               [&](int x, int y) { return cost[x] > cost[y] || (cost[x] == cost[y] && x < y); });
@@ -638,8 +638,8 @@ void frame(const Scene& scene, State& st) {
     st.force += patch.force;
     st.torque += patch.torque;
     Vec3 fb, tb;
-    wrench_on_b(patch.force, patch.torque, c_a, st.poses[static_cast<size_t>(b)].iso() * scene.model(b).mass.center_of_mass,
-                fb, tb);
+    wrench_on_b(patch.force, patch.torque, c_a,
+                st.poses[static_cast<size_t>(b)].iso() * scene.model(b).mass.center_of_mass, fb, tb);
     st.wrench_b[static_cast<size_t>(b)].head<3>() += fb;
     st.wrench_b[static_cast<size_t>(b)].tail<3>() += tb;
   }

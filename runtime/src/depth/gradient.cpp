@@ -235,8 +235,7 @@ bool plan_depth(const Model& A, const Pose& pose_a, const Model& B, const Pose& 
   // two grid texels of slack) overlaps nowhere at any configuration: it could
   // only change a maximum that is below zero, which makes no force.
   plan.cull_a = plan.cull_b = std::numeric_limits<double>::quiet_NaN();
-  if ((opt.heights == HeightMode::surface || opt.heights == HeightMode::mesh) && A.surface.ready &&
-      B.surface.ready) {
+  if ((opt.heights == HeightMode::surface || opt.heights == HeightMode::mesh) && A.surface.ready && B.surface.ready) {
     const double h0 = n.dot(patch.window.origin);
     double lo_b = kInf, hi_a = -kInf, r_a = 0;
     const bool with_reach = opt.heights == HeightMode::mesh;
@@ -342,8 +341,7 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     // height map, by exactly m texels: those four are shifts of h_A(0),
     // rasterized with a border of m.
     auto raster_a0 = [&]() {
-      rasterize_heights_seeded(A, T[0], ta, n, u, v, patch.window, border, true, bufs[0], scratch.seeds,
-                               plan.cull_a);
+      rasterize_heights_seeded(A, T[0], ta, n, u, v, patch.window, border, true, bufs[0], scratch.seeds, plan.cull_a);
     };
     int todo[11];
     int ntodo = 0;
@@ -371,8 +369,8 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
     const int groups = pool ? std::min(pool->threads(), count) : 1;
     auto raster = [&](int g, int) {
       const int lo = g * count / groups, hi = (g + 1) * count / groups;
-      rasterize_heights_multi(A, T + lo, borders + lo, hi - lo, ta, n, u, v, patch.window, true, bufs + lo,
-                              opt.heights, cull);
+      rasterize_heights_multi(A, T + lo, borders + lo, hi - lo, ta, n, u, v, patch.window, true, bufs + lo, opt.heights,
+                              cull);
     };
     if (groups > 1) {
       pool->run(groups, raster);
@@ -384,7 +382,7 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   // Seeded configurations are covered where configuration 0 is (their
   // re-solves start from its seeds); the mesh mode's have their own boxes.
   const CoveredBox box0 = false ? CoveredBox{scratch.seeds.i0, scratch.seeds.i1, scratch.seeds.j0, scratch.seeds.j1}
-                                 : covered_box(ha0, S, -kInf);
+                                : covered_box(ha0, S, -kInf);
   auto box_of = [&](const double* h) {
     return seeded ? CoveredBox{box0.i0 - border, box0.i1 - border, box0.j0 - border, box0.j1 - border}
                   : covered_box(h, N, -kInf);
@@ -506,8 +504,8 @@ void finish_depth_gradient(DepthGradient& out) {
     const bool p = D[plus] > -kInf, m = D[minus] > -kInf;
     if (!p) ++out.uncovered_configurations;
     if (!m) ++out.uncovered_configurations;
-    if (p && m) return kink_safe ? kink_safe_difference(D[plus], D[0], D[minus], step)
-                                 : (D[plus] - D[minus]) / (2 * step);
+    if (p && m)
+      return kink_safe ? kink_safe_difference(D[plus], D[0], D[minus], step) : (D[plus] - D[minus]) / (2 * step);
     if (p) return (D[plus] - D[0]) / step;
     if (m) return (D[0] - D[minus]) / step;
     return 0.0;

@@ -31,8 +31,8 @@ struct MeshRows {
   // triangle, an atlas smaller than 2 x 2. x, y: the corners' grid
   // coordinates; ax, ay: their atlas coordinates (texel units); gx, gy, nobj,
   // ox, oy, oh: the placement (PlacementParams).
-  bool setup(const Model& M, uint32_t f, const Vec3& nobj, double oh, int S, double cell, bool keep_max,
-             double cull, const double* x, const double* y, const double* ax, const double* ay) {
+  bool setup(const Model& M, uint32_t f, const Vec3& nobj, double oh, int S, double cell, bool keep_max, double cull,
+             const double* x, const double* y, const double* ax, const double* ay) {
     const SurfaceMap::Face& sf = M.surface.faces[f];
     // Whole-face culls: every point a quad of the face reads lies within
     // quad_reach of the face (hrt/surface.h).

@@ -122,11 +122,11 @@ namespace {
 // One placement of a model over the grid: the affine maps from object space
 // to grid coordinates and to heights, and the sampler dotted with n_obj.
 struct Placement {
-  Vec3 gx, gy;      // grid x = gx . P + ox, y = gy . P + oy (texel centres at integers, border included)
+  Vec3 gx, gy;  // grid x = gx . P + ox, y = gy . P + oy (texel centres at integers, border included)
   double ox, oy;
-  double oh;        // h = sample . (n_obj) + oh, relative to n . origin
+  double oh;  // h = sample . (n_obj) + oh, relative to n . origin
   HeightSampler sample;
-  int S;            // side of the output buffer
+  int S;  // side of the output buffer
   bool keep_max;
   double* out;
   // Surface mode (HeightMode::surface): the model's surface map, n in the
@@ -140,7 +140,7 @@ struct Placement {
   // Jacobian of the triangle it came from.
   double* seed_a = nullptr;
   float* seed_j = nullptr;
-  float gx4[4] = {}, gy4[4] = {};  // gx, gy as float4 for HeightSampler::project
+  float gx4[4] = {}, gy4[4] = {};                          // gx, gy as float4 for HeightSampler::project
   double cull = std::numeric_limits<double>::quiet_NaN();  // see rasterize_heights (depth.h)
   // HeightMode::mesh: the atlas quads themselves (raster_triangle_mesh).
   bool mesh = false;
@@ -155,7 +155,10 @@ Placement make_placement(const Model& M, const Eigen::Isometry3d& world_from_m, 
                pp.ox,
                pp.oy,
                pp.oh,
-               HeightSampler{at.rgba.data(), at.width, at.height, static_cast<size_t>(at.width) * 4,
+               HeightSampler{at.rgba.data(),
+                             at.width,
+                             at.height,
+                             static_cast<size_t>(at.width) * 4,
                              {pp.n4[0], pp.n4[1], pp.n4[2], 0.0f},
                              pp.surface ? M.surface.quad_ok.data() : nullptr},
                w.resolution + 2 * border,
@@ -304,9 +307,12 @@ void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, co
       bary(0.0, j, b0);
       for (int k = 0; k < 3 && lo <= hi; ++k) {
         const double lim = -D / scale[k] - b0[k];  // beta_k x >= lim
-        if (beta[k] > 0) lo = std::max(lo, lim / beta[k]);
-        else if (beta[k] < 0) hi = std::min(hi, lim / beta[k]);
-        else if (lim > 0) hi = lo - 1;
+        if (beta[k] > 0)
+          lo = std::max(lo, lim / beta[k]);
+        else if (beta[k] < 0)
+          hi = std::min(hi, lim / beta[k]);
+        else if (lim > 0)
+          hi = lo - 1;
       }
     }
     if (!(lo <= hi)) continue;
@@ -348,8 +354,7 @@ void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, co
           const double h = ph + pl.oh;
           if (pl.keep_max ? h > row[i] : h < row[i]) {
             row[i] = h;
-            if (pl.seed_a)
-              write_seed(pl, static_cast<size_t>(j) * S + i, a_x, a_y, dax_dx, dax_dy, day_dx, day_dy);
+            if (pl.seed_a) write_seed(pl, static_cast<size_t>(j) * S + i, a_x, a_y, dax_dx, dax_dy, day_dx, day_dy);
           }
           break;
         }
@@ -363,7 +368,6 @@ void raster_triangle_surface(const Model& M, uint32_t f, const Placement& pl, co
   }
   if (n_q > 0) flush();
 }
-
 
 // One projected atlas texel of the mesh mode: grid coordinates and height.
 struct MeshCorner {
@@ -588,41 +592,41 @@ void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const
         ensure(top, top_row, top_lo, top_hi, j, lo, hi + 1);
         ensure(bot, bot_row, bot_lo, bot_hi, j + 1, lo, hi + 1);
         for (int i = lo; i <= hi; ++i) {
-            if (!okrow[i]) continue;
-            const int k = i - qi0;
-            const MeshCorner &c00 = top[k], &c10 = top[k + 1], &c01 = bot[k], &c11 = bot[k + 1];
-            if (!(c00.ok && c10.ok && c01.ok && c11.ok)) continue;
-            const double hq = mx ? std::max({c00.h, c10.h, c01.h, c11.h}) : std::min({c00.h, c10.h, c01.h, c11.h});
-            if (cull_on && (mx ? hq < cull : hq > cull)) continue;  // on the far side of the cull
-            // A quad inside one texel's square (the common case where the atlas is
-            // finer than the grid): its highest corner is the highest point of its
-            // two triangles there, one update.
-            const double lx = std::min({c00.x, c10.x, c01.x, c11.x}), hx = std::max({c00.x, c10.x, c01.x, c11.x});
-            const double ly = std::min({c00.y, c10.y, c01.y, c11.y}), hy = std::max({c00.y, c10.y, c01.y, c11.y});
-            if (hx < -0.5 || lx > S - 0.5 || hy < -0.5 || ly > S - 0.5) continue;  // beside the grid
-            const double ci = std::floor(lx + 0.5), cj = std::floor(ly + 0.5);
-            if (hx < ci + 0.5 && hy < cj + 0.5 && ci >= 0 && cj >= 0 && ci < S && cj < S) {
-              double& o = pl.out[static_cast<size_t>(cj) * S + static_cast<size_t>(ci)];
-              o = mx ? std::max(o, hq) : std::min(o, hq);
-              continue;
+          if (!okrow[i]) continue;
+          const int k = i - qi0;
+          const MeshCorner &c00 = top[k], &c10 = top[k + 1], &c01 = bot[k], &c11 = bot[k + 1];
+          if (!(c00.ok && c10.ok && c01.ok && c11.ok)) continue;
+          const double hq = mx ? std::max({c00.h, c10.h, c01.h, c11.h}) : std::min({c00.h, c10.h, c01.h, c11.h});
+          if (cull_on && (mx ? hq < cull : hq > cull)) continue;  // on the far side of the cull
+          // A quad inside one texel's square (the common case where the atlas is
+          // finer than the grid): its highest corner is the highest point of its
+          // two triangles there, one update.
+          const double lx = std::min({c00.x, c10.x, c01.x, c11.x}), hx = std::max({c00.x, c10.x, c01.x, c11.x});
+          const double ly = std::min({c00.y, c10.y, c01.y, c11.y}), hy = std::max({c00.y, c10.y, c01.y, c11.y});
+          if (hx < -0.5 || lx > S - 0.5 || hy < -0.5 || ly > S - 0.5) continue;  // beside the grid
+          const double ci = std::floor(lx + 0.5), cj = std::floor(ly + 0.5);
+          if (hx < ci + 0.5 && hy < cj + 0.5 && ci >= 0 && cj >= 0 && ci < S && cj < S) {
+            double& o = pl.out[static_cast<size_t>(cj) * S + static_cast<size_t>(ci)];
+            o = mx ? std::max(o, hq) : std::min(o, hq);
+            continue;
+          }
+          {  // occluded: the (at most 2 x 2) texels its box meets already hold more
+            const int i0 = std::max(0, static_cast<int>(std::ceil(lx - 0.5)));
+            const int i1 = std::min(S - 1, static_cast<int>(std::floor(hx + 0.5)));
+            const int j0 = std::max(0, static_cast<int>(std::ceil(ly - 0.5)));
+            const int j1 = std::min(S - 1, static_cast<int>(std::floor(hy + 0.5)));
+            if (i1 - i0 <= 1 && j1 - j0 <= 1) {
+              bool occluded = true;
+              for (int jj = j0; jj <= j1 && occluded; ++jj)
+                for (int ii = i0; ii <= i1 && occluded; ++ii) {
+                  const double o = pl.out[static_cast<size_t>(jj) * S + ii];
+                  occluded = mx ? o >= hq : o <= hq;
+                }
+              if (occluded) continue;
             }
-            {  // occluded: the (at most 2 x 2) texels its box meets already hold more
-              const int i0 = std::max(0, static_cast<int>(std::ceil(lx - 0.5)));
-              const int i1 = std::min(S - 1, static_cast<int>(std::floor(hx + 0.5)));
-              const int j0 = std::max(0, static_cast<int>(std::ceil(ly - 0.5)));
-              const int j1 = std::min(S - 1, static_cast<int>(std::floor(hy + 0.5)));
-              if (i1 - i0 <= 1 && j1 - j0 <= 1) {
-                bool occluded = true;
-                for (int jj = j0; jj <= j1 && occluded; ++jj)
-                  for (int ii = i0; ii <= i1 && occluded; ++ii) {
-                    const double o = pl.out[static_cast<size_t>(jj) * S + ii];
-                    occluded = mx ? o >= hq : o <= hq;
-                  }
-                if (occluded) continue;
-              }
-            }
-            splat_triangle(pl, c00, c10, c11);
-            splat_triangle(pl, c00, c11, c01);
+          }
+          splat_triangle(pl, c00, c10, c11);
+          splat_triangle(pl, c00, c11, c01);
         }
       }
     }
@@ -720,13 +724,17 @@ void raster_triangle(const Model& M, uint32_t f, const Placement& pl) {
         }
       }
     } else if (in && pl.keep_max) {
-      for (int i = i0; i <= i1; ++i, cax += dax_dx, cay += day_dx) row[i] = std::max(row[i], sample.inside(cax, cay) + oh);
+      for (int i = i0; i <= i1; ++i, cax += dax_dx, cay += day_dx)
+        row[i] = std::max(row[i], sample.inside(cax, cay) + oh);
     } else if (in) {
-      for (int i = i0; i <= i1; ++i, cax += dax_dx, cay += day_dx) row[i] = std::min(row[i], sample.inside(cax, cay) + oh);
+      for (int i = i0; i <= i1; ++i, cax += dax_dx, cay += day_dx)
+        row[i] = std::min(row[i], sample.inside(cax, cay) + oh);
     } else if (pl.keep_max) {
-      for (int i = i0; i <= i1; ++i, cax += dax_dx, cay += day_dx) row[i] = std::max(row[i], sample.clamped(cax, cay) + oh);
+      for (int i = i0; i <= i1; ++i, cax += dax_dx, cay += day_dx)
+        row[i] = std::max(row[i], sample.clamped(cax, cay) + oh);
     } else {
-      for (int i = i0; i <= i1; ++i, cax += dax_dx, cay += day_dx) row[i] = std::min(row[i], sample.clamped(cax, cay) + oh);
+      for (int i = i0; i <= i1; ++i, cax += dax_dx, cay += day_dx)
+        row[i] = std::min(row[i], sample.clamped(cax, cay) + oh);
     }
   }
 }
@@ -828,7 +836,8 @@ void rasterize_heights_multi(const Model& M, const Eigen::Isometry3d* world_from
     const int m = std::min(kMax, count - k0);
     Placement pl[kMax] = {};
     for (int k = 0; k < m; ++k) {
-      pl[k] = make_placement(M, world_from_m[k0 + k], n, u, v, w, borders ? borders[k0 + k] : 0, keep_max, out[k0 + k], mode);
+      pl[k] = make_placement(M, world_from_m[k0 + k], n, u, v, w, borders ? borders[k0 + k] : 0, keep_max, out[k0 + k],
+                             mode);
       pl[k].cull = cull;
     }
     for (uint32_t f : mesh_order(M, tris, pl[0])) {
@@ -924,9 +933,8 @@ void resolve_heights_impl(const Model& M, const Eigen::Isometry3d& world_from_m,
 }  // namespace
 
 void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, const Eigen::Isometry3d& seed_world_from_m,
-                     const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, bool keep_max,
-                     const double* seed_h, int border, const HeightSeeds& seeds, double* out,
-                     const double* other) {
+                     const Vec3& n, const Vec3& u, const Vec3& v, const Window& w, bool keep_max, const double* seed_h,
+                     int border, const HeightSeeds& seeds, double* out, const double* other) {
   resolve_heights_impl(M, world_from_m, seed_world_from_m, n, u, v, w, keep_max, seed_h, border, seeds, out, other,
                        !t_reference_heights);
 }
@@ -934,8 +942,8 @@ void resolve_heights(const Model& M, const Eigen::Isometry3d& world_from_m, cons
 void use_reference_heights(bool on) { t_reference_heights = on; }
 
 void resolve_heights_reference(const Model& M, const Eigen::Isometry3d& world_from_m,
-                               const Eigen::Isometry3d& seed_world_from_m, const Vec3& n, const Vec3& u,
-                               const Vec3& v, const Window& w, bool keep_max, const double* seed_h, int border,
+                               const Eigen::Isometry3d& seed_world_from_m, const Vec3& n, const Vec3& u, const Vec3& v,
+                               const Window& w, bool keep_max, const double* seed_h, int border,
                                const HeightSeeds& seeds, double* out, const double* other) {
   resolve_heights_impl(M, world_from_m, seed_world_from_m, n, u, v, w, keep_max, seed_h, border, seeds, out, other,
                        false);
@@ -948,10 +956,10 @@ double directional_depth(const Model& A, const Eigen::Isometry3d& world_from_a, 
                          bool* covered, HeightMode mode) {
   const int N = patch.window.resolution;
   if (scratch.capacity < N) scratch.reserve(N);
-  rasterize_heights(B, world_from_b, height_faces(patch.tris_b, patch.reach_b, mode, scratch.tris_b), patch.n,
-                    patch.u, patch.v, patch.window, 0, false, scratch.hb.data(), mode);
-  rasterize_heights(A, world_from_a, height_faces(patch.tris_a, patch.reach_a, mode, scratch.tris_a), patch.n,
-                    patch.u, patch.v, patch.window, 0, true, scratch.ha.data(), mode);
+  rasterize_heights(B, world_from_b, height_faces(patch.tris_b, patch.reach_b, mode, scratch.tris_b), patch.n, patch.u,
+                    patch.v, patch.window, 0, false, scratch.hb.data(), mode);
+  rasterize_heights(A, world_from_a, height_faces(patch.tris_a, patch.reach_a, mode, scratch.tris_a), patch.n, patch.u,
+                    patch.v, patch.window, 0, true, scratch.ha.data(), mode);
   double d = -kInf;
   const size_t count = static_cast<size_t>(N) * N;
   const double* ha = scratch.ha.data();

@@ -42,17 +42,24 @@ class Lookup {
  public:
   template <class P>
   explicit Lookup(const P& p)
-      : rgba_(p.rgba), ok_(p.ok), lo_(hn::Set(dd_, -1e6)), hi_(hn::Set(dd_, 1e6)), one_i_(hn::Set(di_, 1)),
-        wi_(hn::Set(di_, p.w)), wmax_(hn::Set(di_, p.w - 1)), hmax_(hn::Set(di_, p.h - 1)),
-        stride_(hn::Set(di_, p.stride)), byte_(hn::Set(di_, 0xFF)) {
+      : rgba_(p.rgba),
+        ok_(p.ok),
+        lo_(hn::Set(dd_, -1e6)),
+        hi_(hn::Set(dd_, 1e6)),
+        one_i_(hn::Set(di_, 1)),
+        wi_(hn::Set(di_, p.w)),
+        wmax_(hn::Set(di_, p.w - 1)),
+        hmax_(hn::Set(di_, p.h - 1)),
+        stride_(hn::Set(di_, p.stride)),
+        byte_(hn::Set(di_, 0xFF)) {
     for (int c = 0; c < 3; ++c)
       gx_[c] = hn::Set(df_, p.gx4[c]), gy_[c] = hn::Set(df_, p.gy4[c]), gn_[c] = hn::Set(df_, p.n4[c]);
   }
 
   template <class M>
   HWY_INLINE bool project(VD vax, VD vay, M& active, VD& px, VD& py, VD& pz) {
-    active = hn::And(active, hn::And(hn::And(hn::Gt(vax, lo_), hn::Lt(vax, hi_)),
-                                     hn::And(hn::Gt(vay, lo_), hn::Lt(vay, hi_))));
+    active = hn::And(active,
+                     hn::And(hn::And(hn::Gt(vax, lo_), hn::Lt(vax, hi_)), hn::And(hn::Gt(vay, lo_), hn::Lt(vay, hi_))));
     if (hn::AllFalse(dd_, active)) return false;
     const VD sx = hn::IfThenElseZero(active, vax), sy = hn::IfThenElseZero(active, vay);
     const VD fx0 = hn::Floor(sx), fy0 = hn::Floor(sy);

@@ -20,13 +20,13 @@ struct ResolveArgs {
   double ox, oy, oh, tol2;
   double gx0, gxi, gxj, gxh, gy0, gyi, gyj, gyh;
   int N, border;
-  int i0, i1, j0, j1;      // the texels that can hold a seed (N x N coordinates)
-  double none;             // -inf (A, keep_max) or +inf
-  const double* seed_h;    // (N + 2 border)^2
-  const double* seed_a;    // 2 per seed texel
-  const float* seed_j;     // 4 per seed texel
-  const double* other;     // N^2 or null
-  double* out;             // N^2
+  int i0, i1, j0, j1;    // the texels that can hold a seed (N x N coordinates)
+  double none;           // -inf (A, keep_max) or +inf
+  const double* seed_h;  // (N + 2 border)^2
+  const double* seed_a;  // 2 per seed texel
+  const float* seed_j;   // 4 per seed texel
+  const double* other;   // N^2 or null
+  double* out;           // N^2
 };
 
 // resolve_heights' loop over every texel: the same operations in the same

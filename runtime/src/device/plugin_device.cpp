@@ -65,7 +65,8 @@ DeviceInfo convert(const hrt_device_info& c, const std::string& what) {
     return v;
   };
   auto positive = [&](const char* key, double v) {
-    if (!(std::isfinite(v) && v > 0)) throw DeviceError(what + ": info: " + key + " " + std::to_string(v) + " (finite, > 0)");
+    if (!(std::isfinite(v) && v > 0))
+      throw DeviceError(what + ": info: " + key + " " + std::to_string(v) + " (finite, > 0)");
     return v;
   };
   info.dof_sensed = dof("dof_sensed", c.dof_sensed);
@@ -133,7 +134,8 @@ void check_plugin_file(const std::string& path, const std::string& what) {
     // The same words as dlopen's message for a missing file, which users
     // (and their scripts) already know.
     if (e.kind == InputFileError::Kind::missing)
-      throw DeviceError(what + ": cannot load: " + path + ": cannot open shared object file: No such file or directory");
+      throw DeviceError(what + ": cannot load: " + path +
+                        ": cannot open shared object file: No such file or directory");
     throw DeviceError(e.what());
   }
   // O_NONBLOCK: a path swapped for a FIFO since the check must not block the
@@ -144,7 +146,7 @@ void check_plugin_file(const std::string& path, const std::string& what) {
     int fd;
     ~Closer() { ::close(fd); }
   } closer{fd};
-  struct stat st {};
+  struct stat st{};
   if (::fstat(fd, &st) != 0) throw DeviceError(what + ": cannot read: " + std::strerror(errno));
   if (!S_ISREG(st.st_mode)) throw DeviceError(what + ": is no longer a regular file (it changed while being checked)");
   const uint64_t size = static_cast<uint64_t>(st.st_size);
@@ -179,7 +181,9 @@ void check_plugin_file(const std::string& path, const std::string& what) {
     throw DeviceError(what + ": truncated: the ELF header ends at byte " + std::to_string(sizeof h) + has);
   if (h.e_type != ET_DYN)
     throw DeviceError(what + ": not a shared library (ELF type " + std::to_string(h.e_type) +
-                      (h.e_type == ET_EXEC ? ": an executable" : h.e_type == ET_REL ? ": an object file, link it with -shared" : "") +
+                      (h.e_type == ET_EXEC  ? ": an executable"
+                       : h.e_type == ET_REL ? ": an object file, link it with -shared"
+                                            : "") +
                       ")");
   if (h.e_machine != kHostMachine)
     throw DeviceError(what + ": built for " + machine_name(h.e_machine) + ", this runtime runs on " +
@@ -219,7 +223,8 @@ void check_plugin_file(const std::string& path, const std::string& what) {
       read_at(&s0, sizeof s0, h.e_shoff, "the section headers");
       count = s0.sh_size;
     }
-    const uint64_t sh_end = count > size / sizeof(Elf64_Shdr) ? UINT64_MAX : end_of(h.e_shoff, count * sizeof(Elf64_Shdr));
+    const uint64_t sh_end =
+        count > size / sizeof(Elf64_Shdr) ? UINT64_MAX : end_of(h.e_shoff, count * sizeof(Elf64_Shdr));
     if (sh_end > size)
       throw DeviceError(what + ": truncated: the section headers end at byte " + std::to_string(sh_end) + has);
   }
@@ -289,7 +294,7 @@ struct PluginDevice::Impl {
   // stay fit for the device thread.
   alignas(64) std::atomic<uint32_t> posted{0};
   alignas(64) std::atomic<uint32_t> finished{0};
-  uint32_t sequence = 0;                // the caller's side: the last call posted
+  uint32_t sequence = 0;                  // the caller's side: the last call posted
   std::atomic<Call> stalled{Call::none};  // the call that missed its deadline, for good
   std::thread worker;
   std::atomic<pid_t> worker_tid{0};
@@ -402,8 +407,10 @@ struct PluginDevice::Impl {
     const Call c = stalled.load(std::memory_order_acquire);
     if (c == Call::none) return {};
     const int ms = deadline_ms(c);
-    const std::string limit = ms % 1000 == 0 && ms >= 1000 ? std::to_string(ms / 1000) + " s" : std::to_string(ms) + " ms";
-    return what + ": " + call_name(c) + "() did not return within " + limit + " (stalled); the plugin is no longer called";
+    const std::string limit =
+        ms % 1000 == 0 && ms >= 1000 ? std::to_string(ms / 1000) + " s" : std::to_string(ms) + " ms";
+    return what + ": " + call_name(c) + "() did not return within " + limit +
+           " (stalled); the plugin is no longer called";
   }
 
   bool is_stalled() const noexcept { return stalled.load(std::memory_order_relaxed) != Call::none; }
@@ -481,8 +488,10 @@ PluginDevice::PluginDevice(const std::string& library_path, const std::string& c
     const struct {
       const char* name;
       bool present;
-    } required[] = {{"create", m.table->create != nullptr}, {"destroy", m.table->destroy != nullptr},
-                    {"info", m.table->info != nullptr},     {"read", m.table->read != nullptr},
+    } required[] = {{"create", m.table->create != nullptr},
+                    {"destroy", m.table->destroy != nullptr},
+                    {"info", m.table->info != nullptr},
+                    {"read", m.table->read != nullptr},
                     {"write", m.table->write != nullptr}};
     for (const auto& r : required)
       if (!r.present) throw DeviceError(m.what + ": required function '" + r.name + "' is NULL in its table");

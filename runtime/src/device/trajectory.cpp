@@ -64,7 +64,8 @@ class LineReader {
       if (pos_ == end_) {
         if (eof_) return out.empty() ? 0 : 1;
         ssize_t n;
-        do n = ::read(fd_, buf_, sizeof buf_); while (n < 0 && errno == EINTR);
+        do n = ::read(fd_, buf_, sizeof buf_);
+        while (n < 0 && errno == EINTR);
         if (n < 0) return 2;
         if (n == 0) {
           eof_ = true;
@@ -119,8 +120,7 @@ void check_and_align(const std::vector<double>& times, std::vector<Pose>& poses,
     // stableNorm: the plain norm of a finite quaternion of 1e300s is inf,
     // and dividing by it would make a zero quaternion out of it.
     const double norm = p.rotation.coeffs().stableNorm();
-    if (!std::isfinite(norm))
-      throw TrajectoryError(where(i) + ": quaternion norm is not finite (" + fmt(norm) + ")");
+    if (!std::isfinite(norm)) throw TrajectoryError(where(i) + ": quaternion norm is not finite (" + fmt(norm) + ")");
     if (norm < kMinQuaternionNorm)
       throw TrajectoryError(where(i) + ": zero quaternion (norm " + fmt(norm) + "), no rotation");
     p.rotation.coeffs() /= norm;
@@ -147,7 +147,7 @@ Trajectory Trajectory::load_csv(const std::string& path, const std::string& pref
   const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_NOCTTY | O_CLOEXEC);
   if (fd < 0) throw TrajectoryError(name + ": cannot read the file: " + std::strerror(errno));
   LineReader in(fd);
-  struct stat st {};
+  struct stat st{};
   if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode))
     throw TrajectoryError(name + ": cannot read the file: not a regular file");
 
@@ -185,8 +185,8 @@ Trajectory Trajectory::load_csv(const std::string& path, const std::string& pref
       }
     }
     if (column[k] < 0)
-      throw TrajectoryError(at_header + ": missing column '" + printable(names[k], 60) + "'" + (k == 0 ? " (or 'time')" : "") +
-                            " in the header");
+      throw TrajectoryError(at_header + ": missing column '" + printable(names[k], 60) + "'" +
+                            (k == 0 ? " (or 'time')" : "") + " in the header");
   }
   const int needed = *std::max_element(column, column + 8) + 1;
 
@@ -236,8 +236,8 @@ Trajectory Trajectory::load_csv(const std::string& path, const std::string& pref
 
 Trajectory Trajectory::from_samples(std::vector<double> times, std::vector<Pose> poses) {
   if (times.size() != poses.size())
-    throw TrajectoryError("trajectory: " + std::to_string(times.size()) + " times but " +
-                          std::to_string(poses.size()) + " poses");
+    throw TrajectoryError("trajectory: " + std::to_string(times.size()) + " times but " + std::to_string(poses.size()) +
+                          " poses");
   if (times.empty()) throw TrajectoryError("trajectory: no samples");
   check_and_align(times, poses, [](size_t i) { return "trajectory: sample " + std::to_string(i); });
   Trajectory out;

@@ -55,9 +55,7 @@ sockaddr_in resolve(const char* what, const std::string& host, int port) {
   return out;
 }
 
-uint64_t source_id(const sockaddr_in& a) {
-  return uint64_t(ntohl(a.sin_addr.s_addr)) << 16 | ntohs(a.sin_port);
-}
+uint64_t source_id(const sockaddr_in& a) { return uint64_t(ntohl(a.sin_addr.s_addr)) << 16 | ntohs(a.sin_port); }
 
 }  // namespace
 
@@ -91,8 +89,8 @@ struct UdpDevice::Impl {
   udp::ObjectPose objects[udp::kMaxObjectsPerPacket];
   uint8_t display_tx[udp::kMaxPacketSize];
 
-  std::atomic<uint64_t> received{0}, accepted{0}, bad_size{0}, bad_magic{0}, bad_version{0}, bad_type{0},
-      non_finite{0}, out_of_order{0}, sent_wrenches{0}, sent_display{0}, send_errors{0};
+  std::atomic<uint64_t> received{0}, accepted{0}, bad_size{0}, bad_magic{0}, bad_version{0}, bad_type{0}, non_finite{0},
+      out_of_order{0}, sent_wrenches{0}, sent_display{0}, send_errors{0};
 
   void send(int sock, const uint8_t* data, size_t size, const sockaddr_in& to, std::atomic<uint64_t>& sent) {
     const ssize_t n = sendto(sock, data, size, MSG_DONTWAIT, reinterpret_cast<const sockaddr*>(&to), sizeof to);
@@ -134,8 +132,9 @@ void UdpDevice::open() {
   }
 
   const int fd = socket(AF_INET, SOCK_DGRAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
-  if (fd < 0) throw DeviceError("udp: cannot create a socket for " + endpoint(o.bind_address, o.port) + ": " +
-                                std::strerror(errno));
+  if (fd < 0)
+    throw DeviceError("udp: cannot create a socket for " + endpoint(o.bind_address, o.port) + ": " +
+                      std::strerror(errno));
   // No SO_REUSEADDR: a second session on the same port is an error, not two
   // processes splitting one client's packets.
   if (bind(fd, reinterpret_cast<const sockaddr*>(&local), sizeof local) != 0) {

@@ -160,8 +160,7 @@ Result encode_pose(const PoseMessage& m, uint8_t* out, size_t capacity, size_t& 
 
 Result encode_wrench(const WrenchMessage& m, uint8_t* out, size_t capacity, size_t& written) noexcept {
   written = 0;
-  if (!std::isfinite(m.header.timestamp) || !finite(m.force, 3) || !finite(m.torque, 3))
-    return Result::non_finite;
+  if (!std::isfinite(m.header.timestamp) || !finite(m.force, 3) || !finite(m.torque, 3)) return Result::non_finite;
   if (out == nullptr || capacity < kWrenchSize) return Result::buffer_too_small;
   put_header(out, MessageType::wrench, m.header);
   put_u32(out + 24, m.answers);
@@ -172,8 +171,8 @@ Result encode_wrench(const WrenchMessage& m, uint8_t* out, size_t capacity, size
   return Result::ok;
 }
 
-Result encode_object_poses(const ObjectPosesMessage& m, const ObjectPose* objects, uint8_t* out,
-                           size_t capacity, size_t& written) noexcept {
+Result encode_object_poses(const ObjectPosesMessage& m, const ObjectPose* objects, uint8_t* out, size_t capacity,
+                           size_t& written) noexcept {
   written = 0;
   if (!std::isfinite(m.header.timestamp)) return Result::non_finite;
   if (m.count > kMaxObjectsPerPacket || (m.count > 0 && objects == nullptr)) return Result::bad_value;

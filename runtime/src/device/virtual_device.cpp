@@ -20,9 +20,8 @@ bool VirtualDevice::set_pose(const Pose& pose, bool clutch) noexcept {
   const Eigen::Quaterniond& q = pose.rotation;
   const double qn = q.norm();
   if (!pose.position.allFinite() || !q.coeffs().allFinite() || !(qn > 1e-12)) return false;
-  const double w[kWords] = {pose.position.x(), pose.position.y(), pose.position.z(),
-                            q.x() / qn,        q.y() / qn,        q.z() / qn,
-                            q.w() / qn,        clutch ? 1.0 : 0.0};
+  const double w[kWords] = {pose.position.x(), pose.position.y(), pose.position.z(), q.x() / qn,
+                            q.y() / qn,        q.z() / qn,        q.w() / qn,        clutch ? 1.0 : 0.0};
   const uint64_t s = seq_.load(std::memory_order_relaxed);
   seq_.store(s + 1, std::memory_order_relaxed);
   std::atomic_thread_fence(std::memory_order_release);

@@ -34,9 +34,7 @@ double ramp_up(double x, double T) {
   return std::clamp(x / T, 0.0, 1.0);
 }
 
-bool usable_rotation(const Eigen::Quaterniond& q) {
-  return q.coeffs().allFinite() && q.coeffs().squaredNorm() > 1e-12;
-}
+bool usable_rotation(const Eigen::Quaterniond& q) { return q.coeffs().allFinite() && q.coeffs().squaredNorm() > 1e-12; }
 bool finite_pose(const Pose& p) { return p.position.allFinite() && usable_rotation(p.rotation); }
 
 bool finite_command(const DeviceCommand& c) {
@@ -148,22 +146,22 @@ Vec6 WorkspaceMap::wrench_to_device(const Vec6& scene) const {
 // DeviceLoop state
 // ---------------------------------------------------------------------------
 struct DeviceLoop::Internal {
-  WorkspaceMap map;             // live map (the clutch re-indexes its offset)
+  WorkspaceMap map;  // live map (the clutch re-indexes its offset)
 
   // Device.
-  DeviceSample sample;          // last good sample
+  DeviceSample sample;  // last good sample
   bool have_pose = false;
   bool clutched = false;
-  double t_clutch = 0.0;        // press time
-  Pose frozen;                  // target while clutched
+  double t_clutch = 0.0;  // press time
+  Pose frozen;            // target while clutched
 
   // Command.
-  DeviceCommand cmd;            // last accepted command (rotations normalized)
+  DeviceCommand cmd;  // last accepted command (rotations normalized)
   bool have_cmd = false;
-  double t_pub = 0.0;           // when it was accepted (device clock)
-  double t_soft = 0.0;          // soft start origin
-  double watchdog = 0.05;       // current watchdog time, s
-  bool stalled = false;         // a stall was detected since the last command
+  double t_pub = 0.0;      // when it was accepted (device clock)
+  double t_soft = 0.0;     // soft start origin
+  double watchdog = 0.05;  // current watchdog time, s
+  bool stalled = false;    // a stall was detected since the last command
 
   // Publication periods for the default watchdog: a ring of the last 64.
   static constexpr size_t kPeriods = 64;
@@ -171,12 +169,12 @@ struct DeviceLoop::Internal {
   size_t n_periods = 0, next_period = 0;
 
   // Output.
-  Vec6 output = Vec6::Zero();   // last written (device frame)
+  Vec6 output = Vec6::Zero();  // last written (device frame)
 
   // Stop (thread mode): requested by stop(), seen by the device thread.
   std::atomic<bool> stop_request{false};
   bool stopping = false;
-  uint64_t stop_ticks = 0;      // ticks since the stop was seen
+  uint64_t stop_ticks = 0;  // ticks since the stop was seen
 
   void push_period(double p) {
     periods[next_period] = p;
@@ -211,8 +209,7 @@ struct DeviceLoop::Internal {
   static void thread_main(DeviceLoop& self);
 };
 
-DeviceLoop::DeviceLoop(Device& device, const DeviceLoopOptions& options, const Clock& clock,
-                       size_t max_ticks_recorded)
+DeviceLoop::DeviceLoop(Device& device, const DeviceLoopOptions& options, const Clock& clock, size_t max_ticks_recorded)
     : device_(device), options_(options), clock_(clock), in_(std::make_unique<Internal>()) {
   in_->map = options_.map;
   in_->watchdog = options_.watchdog >= 0 ? options_.watchdog : 0.05;
@@ -308,9 +305,9 @@ void DeviceLoop::tick() noexcept {
       const double level = s.have_cmd ? s.soft(t, o.soft_start) * s.watchdog_ramp(t, o.watchdog_ramp) : 0.0;
       if (s.have_cmd) s.push_period(t - s.t_pub);
       if (!s.have_cmd)
-        s.t_soft = t;                             // first command: soft start from zero
+        s.t_soft = t;  // first command: soft start from zero
       else if (s.stalled)
-        s.t_soft = t - level * o.soft_start;      // recovery: back in from where the ramp left it
+        s.t_soft = t - level * o.soft_start;  // recovery: back in from where the ramp left it
       s.cmd = c;
       s.cmd.target_ref.rotation.normalize();
       s.have_cmd = true;
@@ -347,11 +344,11 @@ void DeviceLoop::tick() noexcept {
   // for far more than the limit, and scaling that request first would let
   // the output reach ramp x request (clamped only at the full limit) instead
   // of ramp x limit.
-  const double envelope = (s.have_cmd && s.have_pose)
-                              ? std::clamp(s.soft(t, o.soft_start) * s.watchdog_ramp(t, o.watchdog_ramp) *
-                                               clutch_ramp * stop_ramp,
-                                           0.0, 1.0)
-                              : 0.0;
+  const double envelope =
+      (s.have_cmd && s.have_pose)
+          ? std::clamp(s.soft(t, o.soft_start) * s.watchdog_ramp(t, o.watchdog_ramp) * clutch_ramp * stop_ramp, 0.0,
+                       1.0)
+          : 0.0;
 
   // 7. Into the device frame; torque policy.
   Vec6 out = s.map.wrench_to_device(w);

@@ -35,9 +35,9 @@ void check_stat(const struct stat& st, uint64_t max_bytes, const std::string& na
     throw InputFileError(InputFileError::Kind::not_regular, name, "is " + type_of(st.st_mode) + ", not a regular file");
   const uint64_t size = static_cast<uint64_t>(st.st_size);
   if (size > max_bytes)
-    throw InputFileError(InputFileError::Kind::too_large, name, std::to_string(size) +
-                                                              " bytes, more than the limit of " +
-                                                              std::to_string(max_bytes) + " bytes for this file");
+    throw InputFileError(
+        InputFileError::Kind::too_large, name,
+        std::to_string(size) + " bytes, more than the limit of " + std::to_string(max_bytes) + " bytes for this file");
 }
 
 // realpath of the folder plus the name (the file itself may not exist yet).
@@ -54,14 +54,14 @@ std::string resolve(const std::string& path) {
 }  // namespace
 
 std::string describe_file_type(const std::string& path) {
-  struct stat st {};
+  struct stat st{};
   if (::stat(path.c_str(), &st) != 0) return "missing";
   return type_of(st.st_mode);
 }
 
 uint64_t check_input_file(const std::string& path, uint64_t max_bytes, const std::string& label) {
   const std::string name = name_of(path, label);
-  struct stat st {};
+  struct stat st{};
   if (::stat(path.c_str(), &st) != 0) {
     const int err = errno;
     if (err == ENOENT || err == ENOTDIR) throw InputFileError(InputFileError::Kind::missing, name, "no such file");
@@ -77,12 +77,13 @@ std::string read_input_file(const std::string& path, uint64_t max_bytes, const s
   // O_NONBLOCK: if the path was replaced by a FIFO since the stat, the open
   // returns at once instead of waiting for a writer; fstat then refuses it.
   const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_NOCTTY | O_CLOEXEC);
-  if (fd < 0) throw InputFileError(InputFileError::Kind::unreadable, name, std::string("cannot read: ") + std::strerror(errno));
+  if (fd < 0)
+    throw InputFileError(InputFileError::Kind::unreadable, name, std::string("cannot read: ") + std::strerror(errno));
   struct Closer {
     int fd;
     ~Closer() { ::close(fd); }
   } closer{fd};
-  struct stat st {};
+  struct stat st{};
   if (::fstat(fd, &st) != 0)
     throw InputFileError(InputFileError::Kind::unreadable, name, std::string("cannot read: ") + std::strerror(errno));
   check_stat(st, max_bytes, name);
@@ -91,7 +92,8 @@ std::string read_input_file(const std::string& path, uint64_t max_bytes, const s
   while (got < bytes.size()) {
     const ssize_t n = ::read(fd, &bytes[got], bytes.size() - got);
     if (n < 0 && errno == EINTR) continue;
-    if (n < 0) throw InputFileError(InputFileError::Kind::unreadable, name, std::string("cannot read: ") + std::strerror(errno));
+    if (n < 0)
+      throw InputFileError(InputFileError::Kind::unreadable, name, std::string("cannot read: ") + std::strerror(errno));
     if (n == 0) break;  // the file shrank since the fstat
     got += static_cast<size_t>(n);
   }
@@ -107,11 +109,16 @@ std::string printable(std::string_view text, size_t max_chars) {
   for (; i < text.size(); ++i) {
     const unsigned char c = static_cast<unsigned char>(text[i]);
     std::string piece;
-    if (c == '\n') piece = "\\n";
-    else if (c == '\t') piece = "\\t";
-    else if (c == '\r') piece = "\\r";
-    else if (c < 0x20 || c == 0x7f) piece = std::string("\\x") + hex[c >> 4] + hex[c & 15];
-    else piece = std::string(1, static_cast<char>(c));  // UTF-8 bytes pass through
+    if (c == '\n')
+      piece = "\\n";
+    else if (c == '\t')
+      piece = "\\t";
+    else if (c == '\r')
+      piece = "\\r";
+    else if (c < 0x20 || c == 0x7f)
+      piece = std::string("\\x") + hex[c >> 4] + hex[c & 15];
+    else
+      piece = std::string(1, static_cast<char>(c));  // UTF-8 bytes pass through
     if (out.size() + piece.size() > max_chars) break;
     out += piece;
   }
@@ -120,7 +127,7 @@ std::string printable(std::string_view text, size_t max_chars) {
 }
 
 void InputFiles::add_one(const std::string& path, const std::string& what) {
-  struct stat st {};
+  struct stat st{};
   if (::stat(path.c_str(), &st) != 0) return;
   Entry e;
   e.dev = static_cast<uint64_t>(st.st_dev);
@@ -138,7 +145,7 @@ void InputFiles::add_path(const std::string& path, const std::string& what) {
 }
 
 void InputFiles::add(const std::string& path, const std::string& what) {
-  struct stat st {};
+  struct stat st{};
   if (::stat(path.c_str(), &st) != 0) return;
   add_one(path, what);
   if (!S_ISDIR(st.st_mode)) return;
@@ -153,7 +160,7 @@ void InputFiles::add(const std::string& path, const std::string& what) {
 
 void InputFiles::check_output(const std::string& output, const std::string& key) const {
   for (const std::string& p : {output, output + ".partial"}) {
-    struct stat st {};
+    struct stat st{};
     const bool exists = ::stat(p.c_str(), &st) == 0;
     const std::string resolved = resolve(p);
     for (const Entry& e : entries_) {

@@ -36,9 +36,8 @@ void wrench_on_b(const Vec3& force_a, const Vec3& torque_a, const Vec3& c_a, con
   torque_b = -torque_a - (c_a - c_b).cross(force_a);
 }
 
-void compute_patch_wrench(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
-                          ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch,
-                          DepthWarnings* warnings, bool* warned) {
+void compute_patch_wrench(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b, ContactPatch& patch,
+                          const ForceOptions& opt, DepthScratch& scratch, DepthWarnings* warnings, bool* warned) {
   const DepthGradient g = compute_depth_gradient(A, pose_a, B, pose_b, patch, opt, scratch);
   apply_depth_gradient(A, B, patch, g, opt, warnings, warned);
 }

@@ -90,8 +90,9 @@ EGLContext try_display(EGLDisplay dpy, const char* platform, ContextInfo& info, 
     release_display(dpy);
     return nullptr;
   }
-  const EGLint attr[] = {EGL_CONTEXT_MAJOR_VERSION, 4, EGL_CONTEXT_MINOR_VERSION, 5,
-                         EGL_CONTEXT_OPENGL_PROFILE_MASK, EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT, EGL_NONE};
+  const EGLint attr[] = {
+      EGL_CONTEXT_MAJOR_VERSION,           4,       EGL_CONTEXT_MINOR_VERSION, 5, EGL_CONTEXT_OPENGL_PROFILE_MASK,
+      EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT, EGL_NONE};
   EGLContext ctx = eglCreateContext(dpy, n >= 1 ? cfg : EGL_NO_CONFIG_KHR, EGL_NO_CONTEXT, attr);
   if (ctx == EGL_NO_CONTEXT) {
     why = std::string(platform) + ": no OpenGL 4.5 core context (" + egl_error_name(eglGetError()) + ")";
@@ -120,7 +121,8 @@ EGLContext try_display(EGLDisplay dpy, const char* platform, ContextInfo& info, 
   info.compute_shader = v >= 43 || epoxy_has_gl_extension("GL_ARB_compute_shader");
   info.query_buffer_object = v >= 44 || epoxy_has_gl_extension("GL_ARB_query_buffer_object");
   glGetIntegerv(GL_MAX_TEXTURE_SIZE, &info.max_texture_size);
-  if (info.compute_shader) glGetIntegerv(GL_MAX_COMPUTE_WORK_GROUP_INVOCATIONS, &info.max_compute_work_group_invocations);
+  if (info.compute_shader)
+    glGetIntegerv(GL_MAX_COMPUTE_WORK_GROUP_INVOCATIONS, &info.max_compute_work_group_invocations);
   if (v < 45) {
     why = std::string(platform) + ": the context is OpenGL " + info.gl_version + ", 4.5 is needed";
     eglMakeCurrent(dpy, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
@@ -132,7 +134,6 @@ EGLContext try_display(EGLDisplay dpy, const char* platform, ContextInfo& info, 
 }
 
 }  // namespace
-
 
 std::unique_ptr<Context> Context::create() {
   const char* forced = std::getenv("HRT_EGL_PLATFORM");

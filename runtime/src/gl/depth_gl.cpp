@@ -30,16 +30,56 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // Record layouts: kept in step with common.glsl and slots.glsl.
 constexpr int kPD = 32, kPI = 24, kPF = 12, kSL = 16, kRS = 16;
-enum : int { PD_GX = 0, PD_GY = 4, PD_N = 8, PD_TOL = 12, PD_CELL = 13, PD_CULL = 14, PD_HMIN = 15, PD_HSCALE = 16, PD_RM = 17 };
 enum : int {
-  PI_S = 0, PI_KEEP_MAX, PI_SURFACE, PI_TILE_X, PI_TILE_Y, PI_TRI_OFFSET, PI_TRI_COUNT, PI_VERT_BASE, PI_FACE_BASE,
-  PI_ATLAS_W, PI_ATLAS_H, PI_USE_OK, PI_HAS_CULL, PI_N, PI_SEED_BORDER, PI_SEED_X, PI_SEED_Y, PI_OUT_OFFSET,
-  PI_FACE_COUNT, PI_MESH_OFFSET, PI_MESH_COUNT
+  PD_GX = 0,
+  PD_GY = 4,
+  PD_N = 8,
+  PD_TOL = 12,
+  PD_CELL = 13,
+  PD_CULL = 14,
+  PD_HMIN = 15,
+  PD_HSCALE = 16,
+  PD_RM = 17
+};
+enum : int {
+  PI_S = 0,
+  PI_KEEP_MAX,
+  PI_SURFACE,
+  PI_TILE_X,
+  PI_TILE_Y,
+  PI_TRI_OFFSET,
+  PI_TRI_COUNT,
+  PI_VERT_BASE,
+  PI_FACE_BASE,
+  PI_ATLAS_W,
+  PI_ATLAS_H,
+  PI_USE_OK,
+  PI_HAS_CULL,
+  PI_N,
+  PI_SEED_BORDER,
+  PI_SEED_X,
+  PI_SEED_Y,
+  PI_OUT_OFFSET,
+  PI_FACE_COUNT,
+  PI_MESH_OFFSET,
+  PI_MESH_COUNT
 };
 constexpr int kMI = 6;  // ints per mesh entry (mesh.glsl)
 enum : int { PF_GX4 = 0, PF_GY4 = 4, PF_N4 = 8 };
 enum : int {
-  SL_KIND = 0, SL_AX, SL_AY, SL_BORDER, SL_DI, SL_DJ, SL_CFG, SL_BX, SL_BY, SL_N, SL_REGION, SL_DIFF_X, SL_DIFF_Y,
+  SL_KIND = 0,
+  SL_AX,
+  SL_AY,
+  SL_BORDER,
+  SL_DI,
+  SL_DJ,
+  SL_CFG,
+  SL_BX,
+  SL_BY,
+  SL_N,
+  SL_REGION,
+  SL_DIFF_X,
+  SL_DIFF_Y,
   SL_PLACE_B
 };
 
@@ -48,11 +88,15 @@ double us_since(Clock::time_point t0) { return std::chrono::duration<double, std
 
 std::string shader_log(GLuint obj, bool program) {
   GLint n = 0;
-  if (program) glGetProgramiv(obj, GL_INFO_LOG_LENGTH, &n);
-  else glGetShaderiv(obj, GL_INFO_LOG_LENGTH, &n);
+  if (program)
+    glGetProgramiv(obj, GL_INFO_LOG_LENGTH, &n);
+  else
+    glGetShaderiv(obj, GL_INFO_LOG_LENGTH, &n);
   std::string log(static_cast<size_t>(std::max(n, 1)), '\0');
-  if (program) glGetProgramInfoLog(obj, n, nullptr, log.data());
-  else glGetShaderInfoLog(obj, n, nullptr, log.data());
+  if (program)
+    glGetProgramInfoLog(obj, n, nullptr, log.data());
+  else
+    glGetShaderInfoLog(obj, n, nullptr, log.data());
   // First line only: the message must stay one line.
   const size_t nl = log.find('\n');
   if (nl != std::string::npos) log.resize(nl);
@@ -90,7 +134,8 @@ GLuint make_program(const char* what, std::initializer_list<std::pair<GLenum, st
   for (GLuint sh : shaders) glDeleteShader(sh);
   GLint ok = 0;
   glGetProgramiv(prog, GL_LINK_STATUS, &ok);
-  if (!ok) throw GlError(std::string("GL depth backend: the ") + what + " program does not link: " + shader_log(prog, true));
+  if (!ok)
+    throw GlError(std::string("GL depth backend: the ") + what + " program does not link: " + shader_log(prog, true));
   return prog;
 }
 
@@ -188,7 +233,7 @@ struct GlDepthBackend::Impl {
   std::vector<double> quantum;  // per job of the last evaluate()
 
   ~Impl() {
-    GLuint bufs[] = {buf_verts, buf_faces, buf_uvs, buf_surf, tris.id, pd.id,      pi.id,     pf.id,
+    GLuint bufs[] = {buf_verts, buf_faces, buf_uvs,    buf_surf,  tris.id,    pd.id,    pi.id,    pf.id,
                      cfg.id,    slots.id,  results.id, ranges.id, queries.id, meshb.id, meshdb.id};
     glDeleteBuffers(static_cast<GLsizei>(sizeof bufs / sizeof bufs[0]), bufs);
     for (ModelGpu& m : models) {
@@ -235,7 +280,8 @@ struct GlDepthBackend::Impl {
     const GLenum draw[] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1, GL_COLOR_ATTACHMENT2};
     glNamedFramebufferDrawBuffers(fbo, 3, draw);
     if (glCheckNamedFramebufferStatus(fbo, GL_FRAMEBUFFER) != GL_FRAMEBUFFER_COMPLETE)
-      throw GlError("GL depth backend: the height render target (RG32UI + RGBA32UI + RGBA32F + D32F) is not complete here");
+      throw GlError(
+          "GL depth backend: the height render target (RG32UI + RGBA32UI + RGBA32F + D32F) is not complete here");
     tex_diff = make_texture(GL_DEPTH_COMPONENT32F, size, size);
     glCreateFramebuffers(1, &diff_fbo);
     glNamedFramebufferTexture(diff_fbo, GL_DEPTH_ATTACHMENT, tex_diff, 0);
@@ -318,8 +364,8 @@ struct GlDepthBackend::Impl {
   // not per row, so the plan costs a few hundred operations per face (per row
   // it cost more than the draw). Appends to meshv and meshd; returns the
   // first entry, sets the entry and quad counts.
-  int mesh_entries(const Model& M, const std::vector<uint32_t>& list, const PlacementParams& pp, int S,
-                   const Window& w, bool keep_max, double cull, int& entries, int& items) {
+  int mesh_entries(const Model& M, const std::vector<uint32_t>& list, const PlacementParams& pp, int S, const Window& w,
+                   bool keep_max, double cull, int& entries, int& items) {
     const int first = static_cast<int>(meshv.size() / kMI);
     entries = 0, items = 0;
     if (!M.surface.ready) return first;
@@ -832,13 +878,14 @@ GlDepthBackend::GlDepthBackend(Context& context, const std::vector<const Model*>
   glCreateVertexArrays(1, &I.vao);
   glClipControl(GL_LOWER_LEFT, GL_ZERO_TO_ONE);
 
-  I.prog_raster = make_program("height raster", {{GL_VERTEX_SHADER, {"raster.vert"}}, {GL_FRAGMENT_SHADER, {"raster.frag"}}});
+  I.prog_raster =
+      make_program("height raster", {{GL_VERTEX_SHADER, {"raster.vert"}}, {GL_FRAGMENT_SHADER, {"raster.frag"}}});
   I.prog_resolve = make_program("re-solve", {{GL_COMPUTE_SHADER, {"resolve.comp"}}});
   I.prog_reduce = make_program("reduction", {{GL_COMPUTE_SHADER, {"slots.glsl", "reduce.comp"}}});
   I.prog_diff = make_program("difference", {{GL_VERTEX_SHADER, {"slots.glsl", "quad.vert"}},
                                             {GL_FRAGMENT_SHADER, {"slots.glsl", "diff.frag"}}});
-  I.prog_query = make_program("occlusion query", {{GL_VERTEX_SHADER, {"slots.glsl", "quad.vert"}},
-                                                  {GL_FRAGMENT_SHADER, {"empty.frag"}}});
+  I.prog_query = make_program("occlusion query",
+                              {{GL_VERTEX_SHADER, {"slots.glsl", "quad.vert"}}, {GL_FRAGMENT_SHADER, {"empty.frag"}}});
   I.prog_search = make_program("search step", {{GL_COMPUTE_SHADER, {"search.comp"}}});
   I.prog_mesh = make_program("mesh heights", {{GL_VERTEX_SHADER, {"mesh.glsl", "mesh.vert"}},
                                               {GL_GEOMETRY_SHADER, {"mesh.geom"}},

@@ -122,7 +122,8 @@ BackendSelection select_backend(BackendChoice choice, const std::vector<const Mo
   // the synthetic patch, 15 timed repetitions on each backend, medians.
   ContactPatch patch;
   Pose pa, pb;
-  const bool have = models.size() >= 2 && probe_job(*models[0], *models[1], scene_options.force.resolution, patch, pa, pb);
+  const bool have =
+      models.size() >= 2 && probe_job(*models[0], *models[1], scene_options.force.resolution, patch, pa, pb);
   if (!have) {
     sel.backend = std::make_unique<CpuDepthBackend>();
     sel.message = "backend: auto -> cpu (no probe patch could be made from the first two models)";

@@ -23,7 +23,7 @@ namespace {
 // Texel indices and weights of one axis. NaN and far out-of-range coordinates
 // are clamped first, so the float -> int conversion is always defined.
 inline void axis(float x, int n, int& i0, int& i1, float& f) {
-  if (!(x >= -1.0f)) x = -1.0f;                   // also catches NaN
+  if (!(x >= -1.0f)) x = -1.0f;  // also catches NaN
   if (!(x <= static_cast<float>(n))) x = static_cast<float>(n);
   const float fl = std::floor(x);
   f = x - fl;
@@ -39,7 +39,8 @@ Eigen::Vector4f Atlas::sample4(float u, float v) const {
   float fx, fy;
   axis(u * static_cast<float>(width) - 0.5f, width, i0, i1, fx);
   axis((1.0f - v) * static_cast<float>(height) - 0.5f, height, j0, j1, fy);
-  const Eigen::Map<const Eigen::Vector4f> t00(texel(i0, j0)), t10(texel(i1, j0)), t01(texel(i0, j1)), t11(texel(i1, j1));
+  const Eigen::Map<const Eigen::Vector4f> t00(texel(i0, j0)), t10(texel(i1, j0)), t01(texel(i0, j1)),
+      t11(texel(i1, j1));
   return ((1.0f - fx) * (1.0f - fy)) * t00 + (fx * (1.0f - fy)) * t10 + ((1.0f - fx) * fy) * t01 + (fx * fy) * t11;
 }
 

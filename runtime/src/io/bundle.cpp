@@ -109,7 +109,9 @@ struct First {
 
 std::string tri_list(const Tri& t) { return "[" + s(t[0]) + ", " + s(t[1]) + ", " + s(t[2]) + "]"; }
 
-bool finite3(const std::array<float, 3>& p) { return std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]); }
+bool finite3(const std::array<float, 3>& p) {
+  return std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
+}
 
 // Positions (coarse and piece vertices, atlas RGB) lie within this many
 // meters of the object origin on each axis: hbake's input limit
@@ -160,8 +162,8 @@ void load_coarse(Model& model, const io::CoarsePly& ply, const io::ManifestInfo&
       if (t[0] >= n || t[1] >= n || t[2] >= n) bad.add(f);
     }
     if (bad) {
-      fail(count_of(bad.count, "face") + " with a vertex index out of range (vertex count " + s(n) + "): face " + s(bad.first) +
-           " = " + tri_list(ply.faces[bad.first]));
+      fail(count_of(bad.count, "face") + " with a vertex index out of range (vertex count " + s(n) + "): face " +
+           s(bad.first) + " = " + tri_list(ply.faces[bad.first]));
     }
   }
   model.vertices.resize(n);
@@ -197,12 +199,15 @@ void load_coarse(Model& model, const io::CoarsePly& ply, const io::ManifestInfo&
     if (!in) outside.add(f);
     for (int k = 0; k < 3; ++k) model.uvs[f][k] = Vec2f(uv[2 * k], uv[2 * k + 1]);
   }
-  if (invariants && nonfinite) fail(count_of(nonfinite.count, "face") + " with non-finite UVs: face " + s(nonfinite.first));
+  if (invariants && nonfinite)
+    fail(count_of(nonfinite.count, "face") + " with non-finite UVs: face " + s(nonfinite.first));
   if (invariants && outside) {
     const auto& uv = ply.uvs[outside.first];
     std::string list;
-    for (int k = 0; k < 3; ++k) list += std::string(k ? ", " : "") + "[" + fmt("%.9g", uv[2 * k]) + ", " + fmt("%.9g", uv[2 * k + 1]) + "]";
-    fail(count_of(outside.count, "face") + " with UVs outside [0, 1]: face " + s(outside.first) + " has [" + list + "]");
+    for (int k = 0; k < 3; ++k)
+      list += std::string(k ? ", " : "") + "[" + fmt("%.9g", uv[2 * k]) + ", " + fmt("%.9g", uv[2 * k + 1]) + "]";
+    fail(count_of(outside.count, "face") + " with UVs outside [0, 1]: face " + s(outside.first) + " has [" + list +
+         "]");
   }
 }
 
@@ -301,8 +306,8 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
   }
   if (bad_a) {
     const int i = static_cast<int>(bad_a.first % W), j = static_cast<int>(bad_a.first / W);
-    fail(count_of(bad_a.count, "texel") + " with coverage A other than 0 or 1 (first: " + texel_str(i, j) + " has A = " +
-         fmt("%.9g", a.texel(i, j)[3]) + ")");
+    fail(count_of(bad_a.count, "texel") + " with coverage A other than 0 or 1 (first: " + texel_str(i, j) +
+         " has A = " + fmt("%.9g", a.texel(i, j)[3]) + ")");
   }
   // filled = within Chebyshev distance `gutter` of a covered texel (separable
   // box maximum: rows, then columns, with running counts).
@@ -338,8 +343,8 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
   uint64_t work = 0;
   auto check_work = [&]() {
     if (work > work_limit) {
-      fail("the UV triangles need more than " + std::to_string(work_limit) + " texel tests (" + std::to_string(kWorkPerTexel) +
-           " per texel of the atlas + " + std::to_string(kWorkPerTriangle) +
+      fail("the UV triangles need more than " + std::to_string(work_limit) + " texel tests (" +
+           std::to_string(kWorkPerTexel) + " per texel of the atlas + " + std::to_string(kWorkPerTriangle) +
            " per triangle): UV triangles overlap or are slivers across the atlas");
     }
   };
@@ -357,29 +362,33 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
       if (finite[k] && !filled[k] && unfilled++ == 0) ui = i, uj = j;
     });
     if (nonfinite) {
-      if (!nonfinite_tris) nonfinite_example = "triangle " + s(f) + " reads " + s(nonfinite) + ", e.g. " + texel_str(ni, nj);
+      if (!nonfinite_tris)
+        nonfinite_example = "triangle " + s(f) + " reads " + s(nonfinite) + ", e.g. " + texel_str(ni, nj);
       nonfinite_tris.add(f);
     }
     if (unfilled) {
-      if (!unfilled_tris) unfilled_example = "triangle " + s(f) + " reads " + s(unfilled) + ", e.g. " + texel_str(ui, uj);
+      if (!unfilled_tris)
+        unfilled_example = "triangle " + s(f) + " reads " + s(unfilled) + ", e.g. " + texel_str(ui, uj);
       unfilled_tris.add(f);
     }
     check_work();
   }
   if (nonfinite_tris) {
-    fail("bilinear lookups inside " + count_of(nonfinite_tris.count, "UV triangle") + " read non-finite texels: " + nonfinite_example);
+    fail("bilinear lookups inside " + count_of(nonfinite_tris.count, "UV triangle") +
+         " read non-finite texels: " + nonfinite_example);
   }
   if (unfilled_tris) {
     fail("bilinear lookups inside " + count_of(unfilled_tris.count, "UV triangle") +
-         " read texels that are neither covered nor within the gutter (" + std::to_string(g) + ") of a covered texel: " +
-         unfilled_example);
+         " read texels that are neither covered nor within the gutter (" + std::to_string(g) +
+         ") of a covered texel: " + unfilled_example);
   }
   First stray;
   for (size_t k = 0; k < npx; ++k)
     if (!finite[k] && !read[k]) stray.add(k);
   if (stray) {
     fail(count_of(stray.count, "non-finite texel") + " outside every UV triangle's footprint (first: " +
-         texel_str(static_cast<int>(stray.first % W), static_cast<int>(stray.first / W)) + "); unused texels must hold 0");
+         texel_str(static_cast<int>(stray.first % W), static_cast<int>(stray.first / W)) +
+         "); unused texels must hold 0");
   }
   First far;
   for (int j = 0; j < H; ++j)
@@ -412,10 +421,14 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
       ey[k] = py[(k + 1) % 3] - py[k];
       el[k] = std::hypot(ex[k], ey[k]);
     }
-    const double x0 = std::min({px[0], px[1], px[2]}) - kCoverageMargin, x1 = std::max({px[0], px[1], px[2]}) + kCoverageMargin;
-    const double y0 = std::min({py[0], py[1], py[2]}) - kCoverageMargin, y1 = std::max({py[0], py[1], py[2]}) + kCoverageMargin;
-    const int i0 = std::max(0, static_cast<int>(std::ceil(x0 - 0.5))), i1 = std::min(W - 1, static_cast<int>(std::floor(x1 - 0.5)));
-    const int j0 = std::max(0, static_cast<int>(std::ceil(y0 - 0.5))), j1 = std::min(H - 1, static_cast<int>(std::floor(y1 - 0.5)));
+    const double x0 = std::min({px[0], px[1], px[2]}) - kCoverageMargin,
+                 x1 = std::max({px[0], px[1], px[2]}) + kCoverageMargin;
+    const double y0 = std::min({py[0], py[1], py[2]}) - kCoverageMargin,
+                 y1 = std::max({py[0], py[1], py[2]}) + kCoverageMargin;
+    const int i0 = std::max(0, static_cast<int>(std::ceil(x0 - 0.5))),
+              i1 = std::min(W - 1, static_cast<int>(std::floor(x1 - 0.5)));
+    const int j0 = std::max(0, static_cast<int>(std::ceil(y0 - 0.5))),
+              j1 = std::min(H - 1, static_cast<int>(std::floor(y1 - 0.5)));
     for (int j = j0; j <= j1; ++j) {
       const double cy = j + 0.5;
       // Candidates of this row: the centres cx where each edge's signed
@@ -426,9 +439,12 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
       for (int k = 0; k < 3 && lo <= hi; ++k) {
         // sgn (ex (cy - py) - ey (cx - px)) >= -margin el  <=>  a (cx - px) >= b
         const double a = -sgn * ey[k], b = -kCoverageMargin * el[k] - sgn * ex[k] * (cy - py[k]);
-        if (a > 0) lo = std::max(lo, px[k] + b / a - kSpanPad);
-        else if (a < 0) hi = std::min(hi, px[k] + b / a + kSpanPad);
-        else if (b > kSpanPad * el[k]) hi = lo - 1;  // parallel edge, row wholly outside
+        if (a > 0)
+          lo = std::max(lo, px[k] + b / a - kSpanPad);
+        else if (a < 0)
+          hi = std::min(hi, px[k] + b / a + kSpanPad);
+        else if (b > kSpanPad * el[k])
+          hi = lo - 1;  // parallel edge, row wholly outside
       }
       ++work;
       if (!(lo <= hi)) continue;
@@ -442,8 +458,8 @@ void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const 
         if (d < -kCoverageMargin) continue;
         near[at(i, j)] = 1;
         if (d > kCoverageMargin && a.texel(i, j)[3] != 1.0f) {
-          fail(texel_str(i, j) + " has its centre inside the UV triangle of coarse face " + s(f) + " but coverage A = " +
-               fmt("%.9g", a.texel(i, j)[3]) + " (must be 1)");
+          fail(texel_str(i, j) + " has its centre inside the UV triangle of coarse face " + s(f) +
+               " but coverage A = " + fmt("%.9g", a.texel(i, j)[3]) + " (must be 1)");
         }
       }
     }
@@ -473,14 +489,14 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
     if (ply.face_piece[f] >= np) fail("face " + s(f) + " has piece id " + s(ply.face_piece[f]) + range);
   for (size_t i = 1; i < nv; ++i) {
     if (ply.vertex_piece[i] < ply.vertex_piece[i - 1]) {
-      fail("vertices are not stored piece by piece (vertex " + s(i) + " has piece " + s(ply.vertex_piece[i]) + " after piece " +
-           s(ply.vertex_piece[i - 1]) + ")");
+      fail("vertices are not stored piece by piece (vertex " + s(i) + " has piece " + s(ply.vertex_piece[i]) +
+           " after piece " + s(ply.vertex_piece[i - 1]) + ")");
     }
   }
   for (size_t f = 1; f < nf; ++f) {
     if (ply.face_piece[f] < ply.face_piece[f - 1]) {
-      fail("faces are not stored piece by piece (face " + s(f) + " has piece " + s(ply.face_piece[f]) + " after piece " +
-           s(ply.face_piece[f - 1]) + ")");
+      fail("faces are not stored piece by piece (face " + s(f) + " has piece " + s(ply.face_piece[f]) +
+           " after piece " + s(ply.face_piece[f - 1]) + ")");
     }
   }
   {
@@ -490,8 +506,8 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
       if (t[0] >= nv || t[1] >= nv || t[2] >= nv) oob.add(f);
     }
     if (oob) {
-      fail(count_of(oob.count, "face") + " with a vertex index out of range (vertex count " + s(nv) + "): face " + s(oob.first) +
-           " = " + tri_list(ply.faces[oob.first]));
+      fail(count_of(oob.count, "face") + " with a vertex index out of range (vertex count " + s(nv) + "): face " +
+           s(oob.first) + " = " + tri_list(ply.faces[oob.first]));
     }
     for (size_t f = 0; f < nf; ++f) {
       const Tri& t = ply.faces[f];
@@ -517,13 +533,15 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
     First bad;
     for (size_t i = 0; i < nv; ++i)
       if (!finite3(ply.vertices[i])) bad.add(i);
-    if (bad) fail(count_of(bad.count, "vertex", "vertices") + " with non-finite positions (first: vertex " + s(bad.first) + ")");
+    if (bad)
+      fail(count_of(bad.count, "vertex", "vertices") + " with non-finite positions (first: vertex " + s(bad.first) +
+           ")");
     First far;
     for (size_t i = 0; i < nv; ++i)
       if (far3(ply.vertices[i])) far.add(i);
     if (far)
-      fail(count_of(far.count, "vertex", "vertices") + " farther than 10000 m from the origin along an axis (first: vertex " +
-           s(far.first) + ")");
+      fail(count_of(far.count, "vertex", "vertices") +
+           " farther than 10000 m from the origin along an axis (first: vertex " + s(far.first) + ")");
   }
   const size_t ncoarse = model.faces.size();
   for (size_t p = 0; p < np; ++p) {
@@ -557,8 +575,8 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
     }
     if (pf > io::kMaxPieceFaces) {
       fail("piece " + s(p) + " has " + s(pf) + " faces, more than the limit " + s(io::kMaxPieceFaces) +
-           " (a convex piece of at most " + s(io::kMaxPieceVertices) + " vertices has at most " + s(io::kMaxPieceFaces) +
-           " triangles)");
+           " (a convex piece of at most " + s(io::kMaxPieceVertices) + " vertices has at most " +
+           s(io::kMaxPieceFaces) + " triangles)");
     }
   }
   // The coarse mesh's bounding-box diagonal sets the convexity tolerance.
@@ -585,7 +603,9 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
     }
     piece.coarse_faces = ply.coarse_faces[p];
     if (piece.vertices.size() < 4 || piece.faces.size() < 4) {
-      if (!small) small_ex = "piece " + s(p) + " has " + s(piece.vertices.size()) + " vertices, " + s(piece.faces.size()) + " faces";
+      if (!small)
+        small_ex =
+            "piece " + s(p) + " has " + s(piece.vertices.size()) + " vertices, " + s(piece.faces.size()) + " faces";
       small.add(p);
       continue;
     }
@@ -651,8 +671,8 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
     }
     if (worst > tol) {
       if (!nonconvex) {
-        nonconvex_ex = "piece " + s(p) + ": vertex " + s(wv) + " lies " + fmt("%.3g", worst) + " m in front of face " + s(wf) +
-                       " (local indices)";
+        nonconvex_ex = "piece " + s(p) + ": vertex " + s(wv) + " lies " + fmt("%.3g", worst) + " m in front of face " +
+                       s(wf) + " (local indices)";
       }
       nonconvex.add(p);
     }
@@ -661,22 +681,26 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
   if (open) fail(count_of(open.count, "piece") + " not a closed, consistently wound polyhedron: " + open_ex);
   if (degen) fail(count_of(degen.count, "piece") + " with a zero-area face: " + degen_ex);
   if (inward) fail(count_of(inward.count, "piece") + " wound inward (negative volume): " + inward_ex);
-  if (nonconvex) fail(count_of(nonconvex.count, "piece") + " not convex (tolerance " + fmt("%.3g", tol) + " m): " + nonconvex_ex);
+  if (nonconvex)
+    fail(count_of(nonconvex.count, "piece") + " not convex (tolerance " + fmt("%.3g", tol) + " m): " + nonconvex_ex);
 }
 
 }  // namespace
 
 Model load_bundle(const std::string& path, const LoadOptions& opts) {
-  struct stat st {};
-  if (::stat(path.c_str(), &st) != 0) throw BundleError(BundleErrorClass::io, path + ": bundle directory does not exist");
-  if (!S_ISDIR(st.st_mode)) throw BundleError(BundleErrorClass::io, path + ": not a directory (a bundle is a directory)");
+  struct stat st{};
+  if (::stat(path.c_str(), &st) != 0)
+    throw BundleError(BundleErrorClass::io, path + ": bundle directory does not exist");
+  if (!S_ISDIR(st.st_mode))
+    throw BundleError(BundleErrorClass::io, path + ": not a directory (a bundle is a directory)");
 
   const std::string mlabel = join_path(path, "manifest.json");
   std::string mbytes;
   try {
     mbytes = io::read_file(mlabel, mlabel, io::kMaxManifestBytes);
   } catch (const BundleError& e) {
-    throw BundleError(BundleErrorClass::io, std::string(e.what()) == mlabel + ": missing file" ? mlabel + ": missing" : e.what());
+    throw BundleError(BundleErrorClass::io,
+                      std::string(e.what()) == mlabel + ": missing file" ? mlabel + ": missing" : e.what());
   }
   Model model;
   model.path = path;
@@ -727,7 +751,8 @@ Model load_bundle(const std::string& path, const LoadOptions& opts) {
   }
   for (int k = 0; k < 3; ++k) {
     if (opts.verify_hashes && sizes[k] != entries[k]->bytes) {
-      throw BundleError(BundleErrorClass::hash, labels[k] + ": " + s(sizes[k]) + " bytes, the manifest says " + s(entries[k]->bytes));
+      throw BundleError(BundleErrorClass::hash,
+                        labels[k] + ": " + s(sizes[k]) + " bytes, the manifest says " + s(entries[k]->bytes));
     }
     bytes[k] = io::read_file(labels[k], labels[k], kLimits[k]);
     if (opts.verify_hashes) {
@@ -737,7 +762,8 @@ Model load_bundle(const std::string& path, const LoadOptions& opts) {
       }
       const std::string sha = io::sha256_hex(bytes[k]);
       if (sha != entries[k]->sha256) {
-        throw BundleError(BundleErrorClass::hash, labels[k] + ": SHA-256 " + sha.substr(0, 12) + "... differs from the manifest's " +
+        throw BundleError(BundleErrorClass::hash, labels[k] + ": SHA-256 " + sha.substr(0, 12) +
+                                                      "... differs from the manifest's " +
                                                       entries[k]->sha256.substr(0, 12) + "...");
       }
     }
@@ -746,17 +772,18 @@ Model load_bundle(const std::string& path, const LoadOptions& opts) {
   load_coarse(model, io::parse_coarse_ply(bytes[0], labels[0]), info, labels[0], opts.check_invariants);
   if (info.atlas_width != static_cast<uint64_t>(info.atlas_spec.width) ||
       info.atlas_height != static_cast<uint64_t>(info.atlas_spec.height)) {
-    throw BundleError(BundleErrorClass::atlas, mlabel + ": atlas is " + s(info.atlas_width) + "x" + s(info.atlas_height) +
-                                                   " but files.atlas says " + s(info.atlas_spec.width) + "x" +
-                                                   s(info.atlas_spec.height));
+    throw BundleError(BundleErrorClass::atlas, mlabel + ": atlas is " + s(info.atlas_width) + "x" +
+                                                   s(info.atlas_height) + " but files.atlas says " +
+                                                   s(info.atlas_spec.width) + "x" + s(info.atlas_spec.height));
   }
   // The atlas limit before anything of the atlas's size is allocated (a
   // manifest and header agreeing on 16384 x 16384 once allocated 4 GiB).
   if (!(info.atlas_width <= static_cast<uint64_t>(io::kMaxAtlasSide) &&
         info.atlas_height <= static_cast<uint64_t>(io::kMaxAtlasSide) &&
         info.atlas_width * info.atlas_height <= static_cast<uint64_t>(io::kMaxAtlasTexels))) {
-    throw BundleError(BundleErrorClass::atlas, mlabel + ": atlas is " + s(info.atlas_width) + " x " + s(info.atlas_height) +
-                                                   " texels, more than the limit" + io::kAtlasLimitText);
+    throw BundleError(BundleErrorClass::atlas, mlabel + ": atlas is " + s(info.atlas_width) + " x " +
+                                                   s(info.atlas_height) + " texels, more than the limit" +
+                                                   io::kAtlasLimitText);
   }
   model.atlas = io::read_atlas_exr(bytes[1], labels[1], info.atlas_spec, opts.decode_threads);
   if (opts.check_invariants) check_atlas_texels(model, info, labels[1]);

@@ -87,7 +87,7 @@ constexpr const char* kAtlasLimitText = " (each side at most 8192, at most 16777
 struct AtlasSpec {
   int width = 0;
   int height = 0;
-  std::string compression;  // "zip" or "piz"
+  std::string compression;            // "zip" or "piz"
   std::vector<std::string> channels;  // files.atlas.channels: R, G, B, A and possibly more
 };
 // atlas.exr through OpenEXR (Imf::InputFile on an in-memory stream): single-part
@@ -108,7 +108,7 @@ struct ManifestInfo {
   std::string format_version;  // "1.x"
   std::string source_name;
   FileEntry coarse_mesh, atlas, pieces;
-  AtlasSpec atlas_spec;       // files.atlas width, height, channels, compression
+  AtlasSpec atlas_spec;                        // files.atlas width, height, channels, compression
   uint64_t atlas_width = 0, atlas_height = 0;  // atlas.width / atlas.height (must equal files.atlas)
   uint64_t coarse_vertices = 0, coarse_triangles = 0;
   uint64_t piece_count = 0;

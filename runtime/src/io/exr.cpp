@@ -93,7 +93,8 @@ constexpr int kMaxAttributes = 1024;
 constexpr int kMaxChannels = 64;
 
 uint32_t get_u32(const std::string& b, size_t o) {
-  return static_cast<uint32_t>(static_cast<unsigned char>(b[o])) | static_cast<uint32_t>(static_cast<unsigned char>(b[o + 1])) << 8 |
+  return static_cast<uint32_t>(static_cast<unsigned char>(b[o])) |
+         static_cast<uint32_t>(static_cast<unsigned char>(b[o + 1])) << 8 |
          static_cast<uint32_t>(static_cast<unsigned char>(b[o + 2])) << 16 |
          static_cast<uint32_t>(static_cast<unsigned char>(b[o + 3])) << 24;
 }
@@ -164,8 +165,8 @@ void check_header_bounds(const std::string& b, const std::string& label, const A
         const int32_t len = get_i32(b, v + q);
         q += 4;
         if (len < 0 || static_cast<uint64_t>(len) > vs - q) {
-          fail(label, bad + what + " entry " + std::to_string(k) + " claims " + std::to_string(len) + " bytes, more than the " +
-                          std::to_string(vs - q) + " left in the attribute");
+          fail(label, bad + what + " entry " + std::to_string(k) + " claims " + std::to_string(len) +
+                          " bytes, more than the " + std::to_string(vs - q) + " left in the attribute");
         }
         q += static_cast<size_t>(len);
       }
@@ -188,7 +189,8 @@ void check_header_bounds(const std::string& b, const std::string& label, const A
       have_dw = true;
     }
     p += vs;
-    if (p - 8 > kMaxHeaderBytes) fail(label, bad + "the header is larger than " + std::to_string(kMaxHeaderBytes) + " bytes");
+    if (p - 8 > kMaxHeaderBytes)
+      fail(label, bad + "the header is larger than " + std::to_string(kMaxHeaderBytes) + " bytes");
   }
   if (!have_dw) fail(label, bad + "no dataWindow attribute");
   // The same messages as the checks on OpenEXR's header below, so the order
@@ -198,11 +200,12 @@ void check_header_bounds(const std::string& b, const std::string& label, const A
   }
   const int64_t w = static_cast<int64_t>(dw[2]) + 1, h = static_cast<int64_t>(dw[3]) + 1;
   if (!within_atlas_limit(w, h)) {
-    fail(label, "image is " + std::to_string(w) + " x " + std::to_string(h) + " texels, more than the limit" + kAtlasLimitText);
+    fail(label, "image is " + std::to_string(w) + " x " + std::to_string(h) + " texels, more than the limit" +
+                    kAtlasLimitText);
   }
   if (w != spec.width || h != spec.height) {
-    fail(label, "image is " + std::to_string(w) + "x" + std::to_string(h) + ", the manifest says " + std::to_string(spec.width) +
-                    "x" + std::to_string(spec.height));
+    fail(label, "image is " + std::to_string(w) + "x" + std::to_string(h) + ", the manifest says " +
+                    std::to_string(spec.width) + "x" + std::to_string(spec.height));
   }
 }
 
@@ -220,7 +223,8 @@ Atlas read_atlas_exr(const std::string& bytes, const std::string& label, const A
   };
   if (le32(0) != Imf::MAGIC) fail(label, "not an OpenEXR file (bad magic number)");
   const int version = le32(4);
-  if (Imf::getVersion(version) != 2) fail(label, "unsupported OpenEXR file version " + std::to_string(Imf::getVersion(version)));
+  if (Imf::getVersion(version) != 2)
+    fail(label, "unsupported OpenEXR file version " + std::to_string(Imf::getVersion(version)));
   if (Imf::isMultiPart(version)) fail(label, "multi-part OpenEXR file (a single-part scanline image is required)");
   if (Imf::isNonImage(version)) fail(label, "storage is deep, not a scanline image");
   if (Imf::isTiled(version)) fail(label, "storage is tiled, not a scanline image");
@@ -230,8 +234,8 @@ Atlas read_atlas_exr(const std::string& bytes, const std::string& label, const A
   // The manifest's size bounds the texel buffer (load_bundle checked it; a
   // direct caller may not have).
   if (!within_atlas_limit(W, H)) {
-    fail(label, "the manifest's atlas is " + std::to_string(W) + " x " + std::to_string(H) + " texels, more than the limit" +
-                    kAtlasLimitText);
+    fail(label, "the manifest's atlas is " + std::to_string(W) + " x " + std::to_string(H) +
+                    " texels, more than the limit" + kAtlasLimitText);
   }
   check_header_bounds(bytes, label, spec, version);
   Atlas atlas;
@@ -258,12 +262,13 @@ Atlas read_atlas_exr(const std::string& bytes, const std::string& label, const A
     const Imath::Box2i want(Imath::V2i(0, 0), Imath::V2i(W - 1, H - 1));
     const Imath::Box2i dw = h.dataWindow();
     if (dw.min.x != 0 || dw.min.y != 0) {
-      fail(label, "data window starts at (" + std::to_string(dw.min.x) + ", " + std::to_string(dw.min.y) + "), not at (0, 0)");
+      fail(label,
+           "data window starts at (" + std::to_string(dw.min.x) + ", " + std::to_string(dw.min.y) + "), not at (0, 0)");
     }
     if (dw != want) {
       fail(label, "image is " + std::to_string(static_cast<int64_t>(dw.max.x) + 1) + "x" +
-                      std::to_string(static_cast<int64_t>(dw.max.y) + 1) + ", the manifest says " + std::to_string(W) + "x" +
-                      std::to_string(H));
+                      std::to_string(static_cast<int64_t>(dw.max.y) + 1) + ", the manifest says " + std::to_string(W) +
+                      "x" + std::to_string(H));
     }
     if (h.displayWindow() != want) {
       fail(label, "display window is " + box_str(h.displayWindow()) + ", expected " + box_str(want));
@@ -271,7 +276,8 @@ Atlas read_atlas_exr(const std::string& bytes, const std::string& label, const A
     // Channels looked up by name; the file's set must equal the manifest's.
     const Imf::ChannelList& channels = h.channels();
     std::string present;
-    for (auto it = channels.begin(); it != channels.end(); ++it) present += (present.empty() ? "" : ", ") + std::string(it.name());
+    for (auto it = channels.begin(); it != channels.end(); ++it)
+      present += (present.empty() ? "" : ", ") + std::string(it.name());
     for (const std::string& name : spec.channels) {
       if (!channels.findChannel(name)) {
         fail(label, "missing channel '" + name + "' (channels present: " + (present.empty() ? "none" : present) + ")");
@@ -316,7 +322,8 @@ Atlas read_atlas_exr(const std::string& bytes, const std::string& label, const A
   } catch (const std::exception& e) {
     std::string what = e.what();
     if (what.size() > 200) what = what.substr(0, 200) + "...";
-    for (char& ch : what) if (ch == '\n') ch = ' ';
+    for (char& ch : what)
+      if (ch == '\n') ch = ' ';
     fail(label, stage + what);
   }
   return atlas;

@@ -40,7 +40,7 @@ void check_limit(uint64_t size, uint64_t max_bytes, const std::string& label) {
 }  // namespace
 
 uint64_t file_size(const std::string& path, const std::string& label, uint64_t max_bytes) {
-  struct stat st {};
+  struct stat st{};
   if (::stat(path.c_str(), &st) != 0) {
     const int err = errno;
     if (err == ENOENT || err == ENOTDIR) throw BundleError(BundleErrorClass::io, label + ": missing file");
@@ -59,7 +59,7 @@ std::string read_file(const std::string& path, const std::string& label, uint64_
   std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
   if (!f) throw BundleError(BundleErrorClass::io, label + ": cannot read: " + std::strerror(errno));
   // The size of the file opened (it may have been replaced since the stat).
-  struct stat st {};
+  struct stat st{};
   if (::fstat(::fileno(f.get()), &st) != 0 || !S_ISREG(st.st_mode)) {
     throw BundleError(BundleErrorClass::io, label + ": cannot read: not a regular file");
   }

@@ -87,7 +87,9 @@ class Checker {
   [[noreturn]] void bad(const std::string& path, const std::string& msg) const {
     fail(BundleErrorClass::schema, (path.empty() ? std::string("(top level)") : path) + ": " + msg);
   }
-  static std::string join(const std::string& path, const std::string& key) { return path.empty() ? key : path + "/" + key; }
+  static std::string join(const std::string& path, const std::string& key) {
+    return path.empty() ? key : path + "/" + key;
+  }
 
   const json& field(const json& obj, const std::string& path, const char* key) const {
     auto it = obj.find(key);
@@ -97,12 +99,18 @@ class Checker {
   void type(const json& v, const std::string& path, const char* name) const {
     const std::string t = name;
     bool ok = false;
-    if (t == "object") ok = v.is_object();
-    else if (t == "string") ok = v.is_string();
-    else if (t == "boolean") ok = v.is_boolean();
-    else if (t == "array") ok = v.is_array();
-    else if (t == "number") ok = v.is_number();
-    else if (t == "integer") ok = v.is_number_integer() || (v.is_number_float() && std::floor(v.get<double>()) == v.get<double>());
+    if (t == "object")
+      ok = v.is_object();
+    else if (t == "string")
+      ok = v.is_string();
+    else if (t == "boolean")
+      ok = v.is_boolean();
+    else if (t == "array")
+      ok = v.is_array();
+    else if (t == "number")
+      ok = v.is_number();
+    else if (t == "integer")
+      ok = v.is_number_integer() || (v.is_number_float() && std::floor(v.get<double>()) == v.get<double>());
     if (!ok) bad(path, py_repr(v) + " is not of type '" + t + "'");
   }
   const json& object(const json& obj, const std::string& path, const char* key) const {
@@ -118,9 +126,11 @@ class Checker {
   }
   void constant(const json& obj, const std::string& path, const char* key, const char* want) const {
     const json& v = field(obj, path, key);
-    if (!(v.is_string() && v.get<std::string>() == want)) bad(join(path, key), std::string("'") + want + "' was expected");
+    if (!(v.is_string() && v.get<std::string>() == want))
+      bad(join(path, key), std::string("'") + want + "' was expected");
   }
-  std::string one_of(const json& obj, const std::string& path, const char* key, const std::vector<std::string>& allowed) const {
+  std::string one_of(const json& obj, const std::string& path, const char* key,
+                     const std::vector<std::string>& allowed) const {
     const json& v = field(obj, path, key);
     if (v.is_string()) {
       for (const auto& a : allowed)
@@ -146,8 +156,8 @@ class Checker {
     if (d > hi) bad(path, py_repr(v) + " is greater than the maximum of " + num_str(hi));
     return d;
   }
-  double number(const json& obj, const std::string& path, const char* key, double lo = -HUGE_VAL, bool exclusive = false,
-                double hi = HUGE_VAL) const {
+  double number(const json& obj, const std::string& path, const char* key, double lo = -HUGE_VAL,
+                bool exclusive = false, double hi = HUGE_VAL) const {
     return number_value(field(obj, path, key), join(path, key), lo, exclusive, hi);
   }
   // An integer in [lo, hi] (JSON Schema's "integer" admits 2.0).
@@ -159,7 +169,8 @@ class Checker {
     int64_t n;
     if (v.is_number_unsigned()) {
       const uint64_t u = v.get<uint64_t>();
-      if (u > static_cast<uint64_t>(INT64_MAX)) bad(p, py_repr(v) + " is greater than the maximum of " + std::to_string(hi));
+      if (u > static_cast<uint64_t>(INT64_MAX))
+        bad(p, py_repr(v) + " is greater than the maximum of " + std::to_string(hi));
       n = static_cast<int64_t>(u);
     } else if (v.is_number_integer()) {
       n = v.get<int64_t>();
@@ -172,7 +183,8 @@ class Checker {
     if (n > hi) bad(p, py_repr(v) + " is greater than the maximum of " + std::to_string(hi));
     return n;
   }
-  uint64_t count(const json& obj, const std::string& path, const char* key, int64_t lo = 0, int64_t hi = INT64_MAX) const {
+  uint64_t count(const json& obj, const std::string& path, const char* key, int64_t lo = 0,
+                 int64_t hi = INT64_MAX) const {
     return static_cast<uint64_t>(integer(obj, path, key, lo, hi));
   }
   Vec3 vec3_value(const json& v, const std::string& p) const {
@@ -231,7 +243,8 @@ ManifestInfo check_manifest(const json& m, const std::string& label) {
   Checker c(label);
   ManifestInfo info;
   if (!m.is_object()) {
-    c.fail(BundleErrorClass::schema, std::string("top level is ") + (m.is_array() ? "an array" : std::string("a ") + m.type_name()) +
+    c.fail(BundleErrorClass::schema, std::string("top level is ") +
+                                         (m.is_array() ? "an array" : std::string("a ") + m.type_name()) +
                                          ", not an object");
   }
 
@@ -239,22 +252,22 @@ ManifestInfo check_manifest(const json& m, const std::string& label) {
   // version may have another schema, whose errors would hide the real problem.
   auto fmt = m.find("format");
   if (fmt == m.end() || !fmt->is_string() || fmt->get<std::string>() != "hbundle") {
-    c.fail(BundleErrorClass::version, "format is " + (fmt == m.end() ? std::string("None") : py_repr(*fmt)) +
-                                          ", not 'hbundle' (not an hbundle)");
+    c.fail(BundleErrorClass::version,
+           "format is " + (fmt == m.end() ? std::string("None") : py_repr(*fmt)) + ", not 'hbundle' (not an hbundle)");
   }
   auto fv = m.find("format_version");
   const std::string version = (fv != m.end() && fv->is_string()) ? fv->get<std::string>() : std::string();
   // MAJOR.MINOR by hand (linear, bounded; std::regex recursed per character).
   const size_t dot = version.find('.');
-  bool well_formed = fv != m.end() && fv->is_string() && version.size() <= kMaxVersionChars && dot != std::string::npos &&
-                     dot > 0 && dot + 1 < version.size();
-  for (size_t i = 0; well_formed && i < version.size(); ++i) well_formed = i == dot || (version[i] >= '0' && version[i] <= '9');
+  bool well_formed = fv != m.end() && fv->is_string() && version.size() <= kMaxVersionChars &&
+                     dot != std::string::npos && dot > 0 && dot + 1 < version.size();
+  for (size_t i = 0; well_formed && i < version.size(); ++i)
+    well_formed = i == dot || (version[i] >= '0' && version[i] <= '9');
   if (!well_formed) {
-    c.fail(BundleErrorClass::version, "format_version " + (fv == m.end() ? std::string("None") : py_repr(*fv)) +
-                                          " is not MAJOR.MINOR" +
-                                          (version.size() > kMaxVersionChars
-                                               ? " (at most " + std::to_string(kMaxVersionChars) + " characters)"
-                                               : std::string()));
+    c.fail(BundleErrorClass::version,
+           "format_version " + (fv == m.end() ? std::string("None") : py_repr(*fv)) + " is not MAJOR.MINOR" +
+               (version.size() > kMaxVersionChars ? " (at most " + std::to_string(kMaxVersionChars) + " characters)"
+                                                  : std::string()));
   }
   // Compare the major number as a number ("01.0" is major 1, as in Python's int()).
   std::string major = version.substr(0, dot);
@@ -319,7 +332,8 @@ ManifestInfo check_manifest(const json& m, const std::string& label) {
     c.type(ch, "files/atlas/channels", "array");
     for (size_t i = 0; i < ch.size(); ++i) {
       c.type(ch[i], "files/atlas/channels/" + std::to_string(i), "string");
-      if (ch[i].get<std::string>().empty()) c.bad("files/atlas/channels/" + std::to_string(i), "'' should be non-empty");
+      if (ch[i].get<std::string>().empty())
+        c.bad("files/atlas/channels/" + std::to_string(i), "'' should be non-empty");
       info.atlas_spec.channels.push_back(ch[i].get<std::string>());
     }
     std::vector<std::string> sorted = info.atlas_spec.channels;
@@ -329,7 +343,8 @@ ManifestInfo check_manifest(const json& m, const std::string& label) {
     }
     for (const char* need : {"R", "G", "B", "A"}) {
       if (!std::binary_search(sorted.begin(), sorted.end(), std::string(need))) {
-        c.bad("files/atlas/channels", py_repr(ch) + " does not contain items matching the given schema (channel '" + need + "')");
+        c.bad("files/atlas/channels",
+              py_repr(ch) + " does not contain items matching the given schema (channel '" + need + "')");
       }
     }
   }

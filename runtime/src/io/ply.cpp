@@ -68,8 +68,9 @@ size_t read_header(const std::string& bytes, const std::vector<std::string>& lin
   const bool had_comment = got.size() >= 3 && got[2].rfind("comment ", 0) == 0;
   if (had_comment) got.erase(got.begin() + 2);
   if (got.size() != lines.size()) {
-    fail(cls, label, "PLY header has " + std::to_string(got.size()) + " lines, the spec's header has " +
-                         std::to_string(lines.size()) + " (not counting the optional comment)");
+    fail(cls, label,
+         "PLY header has " + std::to_string(got.size()) + " lines, the spec's header has " +
+             std::to_string(lines.size()) + " (not counting the optional comment)");
   }
   auto printable = [](const std::string& s) {
     std::string out;
@@ -96,7 +97,8 @@ size_t read_header(const std::string& bytes, const std::vector<std::string>& lin
       std::string shown = want;
       if (hash != std::string::npos) shown.replace(hash, 1, kCountNames[std::min<size_t>(nth, 3)]);
       const size_t line_no = k + 1 + (had_comment && k >= 2 ? 1 : 0);  // as in the file
-      fail(cls, label, "PLY header line " + std::to_string(line_no) + " is '" + printable(line) + "', expected '" + shown + "'");
+      fail(cls, label,
+           "PLY header line " + std::to_string(line_no) + " is '" + printable(line) + "', expected '" + shown + "'");
     }
     if (hash != std::string::npos) ++nth;
   }
@@ -153,9 +155,10 @@ CoarsePly parse_coarse_ply(const std::string& bytes, const std::string& label) {
   const uint64_t want = n * kVertexBytes + m * kFaceBytes;
   const uint64_t have = bytes.size() - body;
   if (have != want) {
-    fail(cls, label, std::to_string(bytes.size()) + " bytes, the header's " + std::to_string(n) + " vertices and " +
-                         std::to_string(m) + " faces need " + std::to_string(body + want) +
-                         (have < want ? " (file is truncated)" : " (trailing bytes)"));
+    fail(cls, label,
+         std::to_string(bytes.size()) + " bytes, the header's " + std::to_string(n) + " vertices and " +
+             std::to_string(m) + " faces need " + std::to_string(body + want) +
+             (have < want ? " (file is truncated)" : " (trailing bytes)"));
   }
   Cursor c(bytes, body);
   CoarsePly out;
@@ -177,9 +180,10 @@ CoarsePly parse_coarse_ply(const std::string& bytes, const std::string& label) {
     if ((k != 3 || t != 6) && bad++ == 0) first = f, first_k = k, first_t = t;
   }
   if (bad) {
-    fail(cls, label, std::to_string(bad) + (bad == 1 ? " face record" : " face records") +
-                         " not '3 indices, 6 texcoords' (first: face " + std::to_string(first) + " has " +
-                         std::to_string(first_k) + " indices, " + std::to_string(first_t) + " texcoords)");
+    fail(cls, label,
+         std::to_string(bad) + (bad == 1 ? " face record" : " face records") +
+             " not '3 indices, 6 texcoords' (first: face " + std::to_string(first) + " has " + std::to_string(first_k) +
+             " indices, " + std::to_string(first_t) + " texcoords)");
   }
   return out;
 }
@@ -250,10 +254,11 @@ PiecesPly parse_pieces_table(const std::string& bytes, const std::string& label)
   const uint64_t want = n * kVertexBytes + m * kFaceBytes + 4 * p + 4 * k;
   const uint64_t have = bytes.size() - body;
   if (have != want) {
-    fail(cls, label, std::to_string(bytes.size()) + " bytes, the header's " + std::to_string(n) + " vertices, " +
-                         std::to_string(m) + " faces, " + std::to_string(p) + " pieces and " + std::to_string(k) +
-                         " coarse-face rows need " + std::to_string(body + want) +
-                         (have < want ? " (file is truncated)" : " (trailing bytes)"));
+    fail(cls, label,
+         std::to_string(bytes.size()) + " bytes, the header's " + std::to_string(n) + " vertices, " +
+             std::to_string(m) + " faces, " + std::to_string(p) + " pieces and " + std::to_string(k) +
+             " coarse-face rows need " + std::to_string(body + want) +
+             (have < want ? " (file is truncated)" : " (trailing bytes)"));
   }
   Cursor c(bytes, body);
   PiecesPly out;
@@ -262,8 +267,9 @@ PiecesPly parse_pieces_table(const std::string& bytes, const std::string& label)
   uint64_t total = 0;
   for (auto& len : lens) total += (len = c.u32());
   if (total != k) {
-    fail(cls, label, "the pieces' coarse_face_count add up to " + std::to_string(total) +
-                         ", the piece_coarse_face element has " + std::to_string(k) + " rows");
+    fail(cls, label,
+         "the pieces' coarse_face_count add up to " + std::to_string(total) + ", the piece_coarse_face element has " +
+             std::to_string(k) + " rows");
   }
   out.coarse_faces.resize(p);
   for (uint64_t q = 0; q < p; ++q) {
@@ -318,9 +324,10 @@ PiecesPly parse_pieces_ply(const std::string& bytes, const std::string& label, b
   // Fixed-size part first, so the counts are bounded by the file before allocating.
   const uint64_t fixed = n * kVertexBytes + m * kFaceBytes + p * kPieceMinBytes;
   if (fixed > c.left()) {
-    fail(cls, label, "file is truncated (" + std::to_string(bytes.size()) + " bytes; the header's " + std::to_string(n) +
-                         " vertices, " + std::to_string(m) + " faces and " + std::to_string(p) + " pieces need at least " +
-                         std::to_string(body + fixed) + ")");
+    fail(cls, label,
+         "file is truncated (" + std::to_string(bytes.size()) + " bytes; the header's " + std::to_string(n) +
+             " vertices, " + std::to_string(m) + " faces and " + std::to_string(p) + " pieces need at least " +
+             std::to_string(body + fixed) + ")");
   }
   PiecesPly out;
   read_piece_records(c, n, m, out, label);
@@ -329,8 +336,9 @@ PiecesPly parse_pieces_ply(const std::string& bytes, const std::string& label, b
     if (c.left() < 4) fail(cls, label, "file is truncated in the coarse_faces list of piece " + std::to_string(q));
     const uint32_t len = c.u32();
     if (static_cast<uint64_t>(len) * 4 > c.left()) {
-      fail(cls, label, "file is truncated in the coarse_faces list of piece " + std::to_string(q) + " (" + std::to_string(len) +
-                           " entries)");
+      fail(cls, label,
+           "file is truncated in the coarse_faces list of piece " + std::to_string(q) + " (" + std::to_string(len) +
+               " entries)");
     }
     auto& list = out.coarse_faces[q];
     list.resize(len);

@@ -51,7 +51,7 @@ class TaskPool {
   void worker_main(int slot);
 
   std::vector<std::thread> workers_;
-  std::mutex mutex_;                  // the sleepers' condition variable, the first error
+  std::mutex mutex_;  // the sleepers' condition variable, the first error
   std::condition_variable start_cv_;
   std::atomic<uint64_t> generation_{0};  // incremented by each run() with workers
   std::atomic<int> active_{0};           // workers still inside the current run

@@ -109,9 +109,28 @@ const std::map<std::string, std::vector<std::string>>& known_keys() {
       {"material", {"object", "stiffness", "mu_static", "mu_dynamic"}},
       {"workspace", {"scale", "offset_position", "offset_orientation", "grasp_position", "grasp_orientation"}},
       {"device",
-       {"type", "trajectory", "trajectory_prefix", "name", "dof_actuated", "dof_sensed", "workspace", "max_force",
-        "max_torque", "max_stiffness", "max_angular_stiffness", "bind", "port", "reply_address", "reply_port",
-        "display_address", "display_port", "display_rate", "plugin", "config", "start_position", "start_orientation"}},
+       {"type",
+        "trajectory",
+        "trajectory_prefix",
+        "name",
+        "dof_actuated",
+        "dof_sensed",
+        "workspace",
+        "max_force",
+        "max_torque",
+        "max_stiffness",
+        "max_angular_stiffness",
+        "bind",
+        "port",
+        "reply_address",
+        "reply_port",
+        "display_address",
+        "display_port",
+        "display_rate",
+        "plugin",
+        "config",
+        "start_position",
+        "start_orientation"}},
       {"loop",
        {"period", "watchdog", "watchdog_ramp", "soft_start", "max_force_rate", "max_torque_rate", "multirate",
         "realtime", "priority", "log_capacity"}},
@@ -337,7 +356,8 @@ class Section {
         v.push_back(f->get());
       else
         fail(k, expected + ", element " + std::to_string(v.size()) + " is " + type_name(e));
-      if (!std::isfinite(v.back())) fail(k, "element " + std::to_string(v.size() - 1) + " must be finite, got " + fmt(v.back()));
+      if (!std::isfinite(v.back()))
+        fail(k, "element " + std::to_string(v.size() - 1) + " must be finite, got " + fmt(v.back()));
     }
     return v;
   }
@@ -349,7 +369,8 @@ class Section {
   Vec3 position(const std::string& k) const {
     const Vec3 p = vec3(k, Vec3::Zero());
     if (!(p.stableNorm() <= kMaxPosition))
-      fail(k, "is " + fmt(p.stableNorm()) + " m from the origin; at most " + fmt(kMaxPosition) + " m (meters, not mm?)");
+      fail(k,
+           "is " + fmt(p.stableNorm()) + " m from the origin; at most " + fmt(kMaxPosition) + " m (meters, not mm?)");
     return p;
   }
   Eigen::Quaterniond quaternion(const std::string& k) const {
@@ -403,7 +424,6 @@ void check_parent_folder(const Section& s, const std::string& k, const std::stri
                   (ec && ec != std::errc::no_such_file_or_directory ? " (" + ec.message() + ")" : ""));
 }
 
-
 void check_address(const Section& s, const std::string& k, const std::string& address) {
   in_addr a{};
   if (inet_pton(AF_INET, address.c_str(), &a) != 1)
@@ -415,8 +435,8 @@ void check_address(const Section& s, const std::string& k, const std::string& ad
 void read_device(const Section& s, DeviceConfig& d) {
   d.type = s.choice("type", "scripted", {"scripted", "udp", "plugin", "virtual"});
   const std::vector<std::string> scripted_keys = {"trajectory", "trajectory_prefix"};
-  const std::vector<std::string> udp_keys = {"bind", "port", "reply_address", "reply_port",
-                                             "display_address", "display_port", "display_rate"};
+  const std::vector<std::string> udp_keys = {
+      "bind", "port", "reply_address", "reply_port", "display_address", "display_port", "display_rate"};
   const std::vector<std::string> plugin_keys = {"plugin", "config"};
   const std::vector<std::string> virtual_keys = {"start_position", "start_orientation"};
   // A plugin reports its own name, sensing and workspace; only its limits
@@ -529,8 +549,9 @@ RunConfig load_run_config(const std::string& path) {
     root = toml::parse(text, path);
   } catch (const toml::parse_error& e) {
     const auto& b = e.source().begin;
-    throw SceneFileError(path, "", "line " + std::to_string(b.line) + ", column " + std::to_string(b.column) + ": " +
-                                       one_line(std::string(e.description())));
+    throw SceneFileError(path, "",
+                         "line " + std::to_string(b.line) + ", column " + std::to_string(b.column) + ": " +
+                             one_line(std::string(e.description())));
   }
 
   // Top level: only the known tables, each of its own kind.
@@ -603,7 +624,8 @@ RunConfig load_run_config(const std::string& path) {
       o.name = s.string("name", "object" + std::to_string(i));
       if (o.name.empty()) s.fail("name", "must not be empty");
       for (size_t j = 0; j < c.objects.size(); ++j)
-        if (c.objects[j].name == o.name) s.fail("name", quote_value(o.name) + " is also the name of object[" + std::to_string(j) + "]");
+        if (c.objects[j].name == o.name)
+          s.fail("name", quote_value(o.name) + " is also the name of object[" + std::to_string(j) + "]");
       const auto bundle = s.path("bundle");
       if (!bundle) s.missing("bundle", "every object needs the path of its bundle (a *.hbundle folder)");
       std::error_code ec;
@@ -658,7 +680,8 @@ RunConfig load_run_config(const std::string& path) {
     c.session.density = s.range("density", c.session.density, kDensity);
     c.session.gravity = s.vec3("gravity", c.session.gravity);
     if (!(c.session.gravity.norm() <= kGravity.hi))
-      s.fail("gravity", "its norm must be at most " + fmt(kGravity.hi) + " m/s^2, got " + fmt(c.session.gravity.norm()));
+      s.fail("gravity",
+             "its norm must be at most " + fmt(kGravity.hi) + " m/s^2, got " + fmt(c.session.gravity.norm()));
   }
 
   // [coupling]: all four gains or none (then from the device's limits).
@@ -671,7 +694,8 @@ RunConfig load_run_config(const std::string& path) {
     if (given != 0 && given != 4)
       for (const char* g : gains)
         if (!s.has(g))
-          s.missing(g, "give all four gains k_lin, b_lin, k_ang, b_ang, or none (then they follow the device's limits)");
+          s.missing(g,
+                    "give all four gains k_lin, b_lin, k_ang, b_ang, or none (then they follow the device's limits)");
     if (given == 4) {
       c.session.coupling.k_lin = s.range("k_lin", 0.0, kCouplingK);
       c.session.coupling.b_lin = s.range("b_lin", 0.0, kCouplingB);
@@ -707,12 +731,15 @@ RunConfig load_run_config(const std::string& path) {
         std::vector<std::string> names;
         for (size_t j = 1; j < c.objects.size(); ++j) names.push_back(c.objects[j].name);
         const std::string near = closest(*name, names);
-        s.fail("object", "no object is named " + quote_value(*name) + (near.empty() ? "" : " (did you mean " + quote_value(near) + "?)"));
+        s.fail("object", "no object is named " + quote_value(*name) +
+                             (near.empty() ? "" : " (did you mean " + quote_value(near) + "?)"));
       }
       if (b == 0)
-        s.fail("object", quote_value(*name) + " is the probe; a material belongs to a pair (probe, object): name the other object");
+        s.fail("object", quote_value(*name) +
+                             " is the probe; a material belongs to a pair (probe, object): name the other object");
       if (set_by[static_cast<size_t>(b)] >= 0)
-        s.fail("object", quote_value(*name) + " already has material[" + std::to_string(set_by[static_cast<size_t>(b)]) + "]");
+        s.fail("object",
+               quote_value(*name) + " already has material[" + std::to_string(set_by[static_cast<size_t>(b)]) + "]");
       set_by[static_cast<size_t>(b)] = static_cast<int>(i);
       c.session.materials[static_cast<size_t>(b)] = read_material(s, c.session.material);
     }
@@ -721,7 +748,8 @@ RunConfig load_run_config(const std::string& path) {
     bool any = c.session.material.mu_static > 0;
     for (const Material& m : c.session.materials) any = any || m.mu_static > 0;
     if (!any)
-      section("friction").fail("enabled", "friction is on but no mu_static > 0 is set (in [friction] or a [[material]])");
+      section("friction")
+          .fail("enabled", "friction is on but no mu_static > 0 is set (in [friction] or a [[material]])");
   }
 
   // [workspace]: device frame -> scene, and the grasp on the probe.
@@ -742,8 +770,9 @@ RunConfig load_run_config(const std::string& path) {
   c.session.max_device_stiffness = c.device.info.max_stiffness;
   c.session.max_device_angular_stiffness = c.device.info.max_angular_stiffness;
   if (c.lockstep && c.device.type != "scripted" && c.device.type != "virtual")
-    section("run").fail("lockstep", "lockstep runs without a wall clock, so it needs a scripted or virtual device (this one is \"" +
-                                        c.device.type + "\")");
+    section("run").fail("lockstep",
+                        "lockstep runs without a wall clock, so it needs a scripted or virtual device (this one is \"" +
+                            c.device.type + "\")");
 
   // [loop]
   {
@@ -761,7 +790,8 @@ RunConfig load_run_config(const std::string& path) {
     if (const auto cap = s.integer("log_capacity", 0, static_cast<int64_t>(kMaxLogCapacity)))
       l.log_capacity = static_cast<size_t>(*cap);
     if (c.max_step < l.period && section("run").has("max_step"))
-      section("run").fail("max_step", "must be at least the device period (" + fmt(l.period) + " s), got " + fmt(c.max_step));
+      section("run").fail("max_step",
+                          "must be at least the device period (" + fmt(l.period) + " s), got " + fmt(c.max_step));
   }
 
   // [trace]
@@ -775,7 +805,8 @@ RunConfig load_run_config(const std::string& path) {
     if (!c.trace.device_log.empty()) check_parent_folder(s, "device_log", c.trace.device_log);
     c.trace.rate_set = s.has("rate");
     c.trace.rate = s.range("rate", c.trace.rate, kTraceRate);
-    c.trace.max_bytes = static_cast<uint64_t>(s.range("max_bytes", static_cast<double>(c.trace.max_bytes), kTraceMaxBytes));
+    c.trace.max_bytes =
+        static_cast<uint64_t>(s.range("max_bytes", static_cast<double>(c.trace.max_bytes), kTraceMaxBytes));
     if (!c.trace.device_log.empty() && section("loop").has("log_capacity") && c.loop.log_capacity == 0)
       section("loop").fail("log_capacity", "is 0 but [trace] device_log is set: nothing would be logged");
   }
@@ -795,7 +826,8 @@ void check_run_limits(RunConfig& c) {
   const double ticks = std::ceil((c.duration + c.loop.watchdog_ramp) / c.loop.period - 1e-9) + 1.0;
   if (!c.trace.device_log.empty()) {
     if (c.log_capacity_set) {
-      if (c.loop.log_capacity == 0) fail("loop.log_capacity", "is 0 but a device log is asked for: nothing would be logged");
+      if (c.loop.log_capacity == 0)
+        fail("loop.log_capacity", "is 0 but a device log is asked for: nothing would be logged");
       // Never more rows than the session has ticks: a capacity of millions
       // for a 0.2 s session would be allocated for nothing.
       c.loop.log_capacity = std::min(c.loop.log_capacity, static_cast<size_t>(ticks));
@@ -822,8 +854,9 @@ void check_run_limits(RunConfig& c) {
 void apply_overrides(RunConfig& c, const RunOverrides& o) {
   if (o.duration) {
     if (!(*o.duration >= kDuration.lo && *o.duration <= kDuration.hi))
-      throw SceneFileError(c.file, "--duration", "must be between " + fmt(kDuration.lo) + " and " + fmt(kDuration.hi) +
-                                                     " s, got " + fmt(*o.duration));
+      throw SceneFileError(
+          c.file, "--duration",
+          "must be between " + fmt(kDuration.lo) + " and " + fmt(kDuration.hi) + " s, got " + fmt(*o.duration));
     c.duration = *o.duration;
     c.duration_key = "--duration";
   }

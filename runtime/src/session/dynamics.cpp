@@ -70,8 +70,8 @@ Mat6 contact_stiffness(const State& st, double k) {
   return K;
 }
 
-void step_body(const RigidBody& body, const Coupling& c, const StepInput& in, BodyState& s,
-               FrictionRow* friction, int friction_count) {
+void step_body(const RigidBody& body, const Coupling& c, const StepInput& in, BodyState& s, FrictionRow* friction,
+               int friction_count) {
   const double h = in.h;
   const Mat3 R = s.q.toRotationMatrix();
   Mat6 M = Mat6::Zero();

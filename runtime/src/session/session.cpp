@@ -329,9 +329,11 @@ const SessionFrame& Session::step(double t, double h, const Pose& target) {
     Keff = 0.5 * (Keff + Keff.transpose());
     // Cap at the device's stiffness (congruence keeps it PSD).
     Vec6 sdiag;
-    const double sl = c.k_lin > options_.max_device_stiffness ? std::sqrt(options_.max_device_stiffness / c.k_lin) : 1.0;
+    const double sl =
+        c.k_lin > options_.max_device_stiffness ? std::sqrt(options_.max_device_stiffness / c.k_lin) : 1.0;
     const double sa = c.k_ang > options_.max_device_angular_stiffness
-                          ? std::sqrt(options_.max_device_angular_stiffness / c.k_ang) : 1.0;
+                          ? std::sqrt(options_.max_device_angular_stiffness / c.k_ang)
+                          : 1.0;
     sdiag << sl, sl, sl, sa, sa, sa;
     Keff = sdiag.asDiagonal() * Keff * sdiag.asDiagonal();
   }

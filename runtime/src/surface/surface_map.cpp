@@ -274,7 +274,8 @@ SurfaceCoverage surface_coverage(const Model& model) {
   const SurfaceMap& sm = model.surface;
   const Atlas& at = model.atlas;
   const int W = at.width, H = at.height;
-  if (!sm.ready || W < 2 || H < 2 || sm.quad_ok.size() != static_cast<size_t>(W) * H + SurfaceMap::kQuadOkPadding) return out;
+  if (!sm.ready || W < 2 || H < 2 || sm.quad_ok.size() != static_cast<size_t>(W) * H + SurfaceMap::kQuadOkPadding)
+    return out;
   // A quad counts once even where two triangles' boxes overlap.
   std::vector<uint8_t> seen(static_cast<size_t>(W) * H, 0);
   for (size_t f = 0; f < model.faces.size(); ++f) {

@@ -114,7 +114,12 @@ static const hrt_device_plugin kTable = {
 #else
     HRT_DEVICE_PLUGIN_ABI,
 #endif
-    sizeof(hrt_device_plugin), bad_create, bad_destroy, bad_info, bad_open, bad_close,
+    sizeof(hrt_device_plugin),
+    bad_create,
+    bad_destroy,
+    bad_info,
+    bad_open,
+    bad_close,
 #if HRT_BAD_PLUGIN_CASE == 2
     NULL,
 #else
