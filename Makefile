@@ -14,7 +14,7 @@ APT_PACKAGES := build-essential cmake pkg-config python3-venv \
   clang libclang-rt-14-dev \
   chromium chromium-driver
 
-.PHONY: setup apt venv runtime test test-py test-slow test-cpp demo bench clean
+.PHONY: setup apt venv runtime test test-py test-slow test-cpp lint format demo bench clean
 
 setup: apt venv runtime
 
@@ -48,7 +48,18 @@ runtime: apt venv
 	ln -sf ../../$(BUILD)/hrt $(VENV)/bin/hrt
 	echo "$(CURDIR)/$(BUILD)/python" > "$$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/hrt-runtime.pth"
 
-test: setup test-cpp test-py test-fuzz
+test: setup lint test-cpp test-py test-fuzz
+
+# Linters, pinned in pyproject.toml's test extra: ruff over the Python ([tool.ruff]: pyflakes,
+# pycodestyle's errors, no np.empty) and clang-format over the C and C++ (.clang-format).
+# `make format` applies clang-format; ruff's fixes are `.venv/bin/ruff check --fix`.
+CXX_SOURCES = git ls-files '*.cpp' '*.h' '*.c'
+lint:
+	$(VENV)/bin/ruff check hbake tests tools examples
+	$(CXX_SOURCES) | xargs $(VENV)/bin/clang-format --dry-run -Werror
+
+format:
+	$(CXX_SOURCES) | xargs $(VENV)/bin/clang-format -i
 
 test-cpp:
 	cmake --build $(BUILD) -j $(JOBS)
