@@ -18,24 +18,10 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "hrt/math.h"
 #include "hrt/model.h"
 
 namespace hrt {
-
-using Vec6 = Eigen::Matrix<double, 6, 1>;
-
-// Pose of a bundle's object frame in the world: p_world = rotation * p_object + position.
-struct Pose {
-  Vec3 position = Vec3::Zero();
-  Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();  // unit; written x, y, z, w outside
-
-  Eigen::Isometry3d iso() const {
-    Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-    T.linear() = rotation.toRotationMatrix();
-    T.translation() = position;
-    return T;
-  }
-};
 
 // The square sampling window of a patch in the (u, v) plane. Grid texel (i, j)
 // (i along u, j along v, 0 <= i, j < resolution) has its centre at the world point

@@ -31,7 +31,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "hrt/contact.h"
+#include "hrt/math.h"
 #include "hrt/trajectory.h"
 
 namespace hrt {

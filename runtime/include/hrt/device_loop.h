@@ -54,9 +54,8 @@
 #include <thread>
 #include <vector>
 
-#include "hrt/contact.h"
 #include "hrt/device.h"
-#include "hrt/dynamics.h"
+#include "hrt/math.h"
 
 namespace hrt {
 

@@ -26,12 +26,11 @@
 #include <Eigen/Geometry>
 
 #include "hrt/contact.h"
+#include "hrt/math.h"
 #include "hrt/model.h"
 #include "hrt/scene.h"
 
 namespace hrt {
-
-using Mat6 = Eigen::Matrix<double, 6, 6>;
 
 struct RigidBody {
   double mass = 1.0;                   // kg
@@ -75,11 +74,7 @@ struct StepInput {
   Vec3 gravity = Vec3::Zero();  // m/s^2 (default off: a haptic probe is held)
 };
 
-// Rotation vector (angle times axis) of a unit quaternion, the short way
-// (q and -q are the same rotation; the short one keeps |angle| <= pi), and
-// its inverse, the quaternion of a rotation vector.
-Vec3 rotation_vector(Eigen::Quaterniond q);
-Eigen::Quaterniond exp_rotation(const Vec3& r);
+// rotation_vector and exp_rotation: hrt/math.h.
 
 // The coupling wrench on the body at state s towards `target` (world, torque
 // about the centre of mass).

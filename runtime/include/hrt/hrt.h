@@ -16,8 +16,9 @@
 
 #include "hrt/version.h"
 
+#include "hrt/math.h"     // Vec3, Vec6, Pose, rotation vectors
 #include "hrt/model.h"    // Model, load_bundle, LoadOptions, BundleError
-#include "hrt/contact.h"  // Pose, Window, ContactPatch
+#include "hrt/contact.h"  // Window, ContactPatch
 #include "hrt/depth.h"    // ForceOptions, HeightMode, Eq. 7-9 on one patch
 #include "hrt/depth_backend.h"
 #include "hrt/scene.h"        // Scene, SceneOptions, State, frame()

@@ -16,13 +16,11 @@
 #include <Eigen/Geometry>
 #include <nlohmann/json.hpp>
 
+#include "hrt/math.h"
 #include "hrt/surface.h"
 
 namespace hrt {
 
-using Vec2f = Eigen::Vector2f;
-using Vec3 = Eigen::Vector3d;
-using Mat3 = Eigen::Matrix3d;
 using Tri = std::array<uint32_t, 3>;
 
 // Error classes shared with `hbake validate` (docs/bundle-format.md).

@@ -15,7 +15,7 @@
 #include <string>
 #include <vector>
 
-#include "hrt/contact.h"
+#include "hrt/math.h"
 
 namespace hrt {
 
