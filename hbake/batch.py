@@ -40,29 +40,8 @@ from hbake import __version__
 from hbake.constants import SUPPORTED_EXTENSIONS
 from hbake.fileio import (FileTooLargeError, NotRegularFileError, check_regular, read_regular,
                           write_json_atomic)
-from hbake.errors import (EXIT_BAKE_FAILED, EXIT_CONFIG, EXIT_INPUT_INVALID, EXIT_INPUT_MISSING,
-                          EXIT_INTERRUPTED, EXIT_OUTPUT_EXISTS, EXIT_OUTPUT_UNWRITABLE,
-                          EXIT_USAGE, ConfigError, HbakeError, InputMissingError)
-
-#: Exit code of ``hbake batch`` when at least one model failed (the others were baked).
-EXIT_BATCH_FAILED = 18
-
-#: Error class names of the exit codes (docs/guides/baking.md, "Exit codes"); the JSON outputs use them.
-ERROR_CLASSES = {
-    0: "ok",
-    1: "internal",
-    EXIT_USAGE: "usage",
-    EXIT_INPUT_MISSING: "input-missing",
-    EXIT_INPUT_INVALID: "input-invalid",
-    EXIT_OUTPUT_EXISTS: "output-exists",
-    EXIT_OUTPUT_UNWRITABLE: "output-unwritable",
-    EXIT_BAKE_FAILED: "bake-failed",
-    EXIT_CONFIG: "config",
-    9: "target-unreachable",        # bake --method preserve (issue 11)
-    EXIT_BATCH_FAILED: "batch-failed",
-    20: "texture-parameters",       # hbake texture
-    EXIT_INTERRUPTED: "interrupted",
-}
+from hbake.errors import (EXIT_BATCH_FAILED, EXIT_USAGE,
+                          ConfigError, HbakeError, InputMissingError, error_class)
 
 #: Peak RSS of one `hbake bake` process tree = base + per_triangle x input triangles.
 #: Fitted above the measured envelope (the bake benchmark of docs/guides/baking.md, measured 2026-11-22: 13k-87k
@@ -75,16 +54,6 @@ RSS_PER_TRIANGLE_BYTES = 700
 
 #: Share of the memory available at the start that a batch uses by default.
 DEFAULT_MEMORY_FRACTION = 0.8
-
-
-def error_class(code: int) -> str:
-    """The class name of an exit code; a negative code is a signal (killed, crashed)."""
-    if code < 0:
-        try:
-            return f"killed-{signal.Signals(-code).name}"
-        except ValueError:
-            return f"killed-signal-{-code}"
-    return ERROR_CLASSES.get(code, f"exit-{code}")
 
 
 # --------------------------------------------------------------------------

@@ -69,14 +69,6 @@ ERROR_CLASSES = ("io", "version", "schema", "hash", "mesh", "atlas", "pieces")
 ATLAS_CHANNELS = ["A", "B", "G", "R"]
 ATLAS_COMPRESSIONS = ("zip", "piz")
 
-# Convexity tolerance of the spec: a piece vertex may lie in front of a face plane by
-# at most CONVEX_REL_TOL * bbox_diagonal + CONVEX_ABS_TOL metres. The relative part
-# covers the float32 rounding of the stored positions (2^-24 ~ 6e-8 relative to the
-# coordinates, which are within about one bbox diagonal of the origin for bundles
-# that are not far off-centre); the absolute part keeps tiny models from demanding
-# exactness.
-CONVEX_REL_TOL = 1e-6
-CONVEX_ABS_TOL = 1e-9
 
 # At most this many individual examples per kind of problem; the rest are counted.
 _MAX_EXAMPLES = 3
@@ -244,7 +236,7 @@ def _atlas_size_ok(w: int, h: int) -> bool:
 
 def convexity_tolerance(bbox_diagonal: float) -> float:
     """How far (m) a piece vertex may lie in front of a face plane of its piece."""
-    return CONVEX_REL_TOL * float(bbox_diagonal) + CONVEX_ABS_TOL
+    return C.CONVEX_TOLERANCE_REL * float(bbox_diagonal) + C.CONVEX_TOLERANCE_ABS
 
 
 def _bbox_diagonal(points: np.ndarray) -> float:

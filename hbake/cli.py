@@ -196,7 +196,7 @@ def _bake_here(input, output, settings, report, force, quiet, as_json=False) -> 
 
 def _echo_json_error(code: int, message: str) -> None:
     """--json's answer on a user error (stdout), beside the line on stderr."""
-    from hbake.batch import error_class
+    from hbake.errors import error_class
 
     click.echo(json.dumps({"ok": False, "error": {"class": error_class(code), "exit_code": code,
                                                   "message": message}}, sort_keys=True))

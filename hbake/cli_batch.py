@@ -35,7 +35,7 @@ def _parse_size(ctx, param, value):
 
 
 def _fail(exc: HbakeError, as_json: bool) -> None:
-    from hbake.batch import error_class
+    from hbake.errors import error_class
 
     click.echo(f"hbake: error: {exc}", err=True)
     if as_json:

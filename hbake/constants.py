@@ -217,7 +217,12 @@ DEFAULT_COACD_MCTS_MAX_DEPTH = 3
 #: from, so the tolerance only absorbs float32 storage and qhull round-off; 1e-3 also
 #: adds the neighbours that touch a piece along a cut.
 DEFAULT_MAP_TOLERANCE_REL = 1e-3
-#: Pieces are convex within this (docs/bundle-format.md): 1e-6 * bbox_diagonal + 1e-9 m.
+#: Convexity tolerance of the spec (docs/bundle-format.md): a piece vertex may lie in front
+#: of a face plane of its piece by at most CONVEX_TOLERANCE_REL * bbox_diagonal +
+#: CONVEX_TOLERANCE_ABS metres. The relative part covers the float32 rounding of the stored
+#: positions (2^-24 ~ 6e-8 relative to the coordinates, which are within about one bbox
+#: diagonal of the origin for bundles that are not far off-centre); the absolute part keeps
+#: tiny models from demanding exactness.
 CONVEX_TOLERANCE_REL = 1e-6
 CONVEX_TOLERANCE_ABS = 1e-9
 

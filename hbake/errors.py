@@ -7,6 +7,8 @@ Exit codes are documented in docs/guides/baking.md ("Exit codes") and are stable
 """
 from __future__ import annotations
 
+import signal
+
 # Exit codes of `hbake bake` (and the commands that read meshes).
 EXIT_OK = 0
 EXIT_USAGE = 2            # bad option or argument (click's own code)
@@ -19,6 +21,7 @@ EXIT_CONFIG = 8           # bad --config file or setting value
 EXIT_TEXTURE_PARAMETERS = 20  # hbake texture: a parameter it cannot honour (amplitude, wavelength, region)
 EXIT_TARGET_UNREACHABLE = 9  # --method preserve: the coarse mesh cannot reach the target with its chart borders kept
 EXIT_INTERRUPTED = 130    # Ctrl-C / SIGINT / SIGTERM (128 + SIGINT, the shell convention)
+EXIT_BATCH_FAILED = 18    # hbake batch: at least one model failed (the others were baked)
 
 # Exit codes of `hbake validate`, one per error class of docs/bundle-format.md.
 VALIDATE_EXIT = {
@@ -30,6 +33,34 @@ VALIDATE_EXIT = {
     "atlas": 15,
     "pieces": 16,
 }
+
+
+#: Error class names of the exit codes (docs/guides/baking.md, "Exit codes"); the JSON outputs use them.
+ERROR_CLASSES = {
+    0: "ok",
+    1: "internal",
+    EXIT_USAGE: "usage",
+    EXIT_INPUT_MISSING: "input-missing",
+    EXIT_INPUT_INVALID: "input-invalid",
+    EXIT_OUTPUT_EXISTS: "output-exists",
+    EXIT_OUTPUT_UNWRITABLE: "output-unwritable",
+    EXIT_BAKE_FAILED: "bake-failed",
+    EXIT_CONFIG: "config",
+    EXIT_TARGET_UNREACHABLE: "target-unreachable",  # bake --method preserve
+    EXIT_BATCH_FAILED: "batch-failed",
+    EXIT_TEXTURE_PARAMETERS: "texture-parameters",  # hbake texture
+    EXIT_INTERRUPTED: "interrupted",
+}
+
+
+def error_class(code: int) -> str:
+    """The class name of an exit code; a negative code is a signal (killed, crashed)."""
+    if code < 0:
+        try:
+            return f"killed-{signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed-signal-{-code}"
+    return ERROR_CLASSES.get(code, f"exit-{code}")
 
 
 class HbakeError(Exception):
