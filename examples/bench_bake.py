@@ -6,7 +6,7 @@
 
 Thin wrapper over hbake.bench (see its docstring for what is measured and how).
 """
-from hbake.bench import bench_command
+from hbake.cli_lab import bench_command
 
 if __name__ == "__main__":
     bench_command(prog_name="bench_bake.py")

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
-import click
 
 #: The shared models and the unit each is baked in (none of the files records
 #: one; these give hand-sized or plausible parts, and the figures of the table
@@ -395,55 +394,13 @@ def run_bench(models: Sequence[str | os.PathLike] | None = None,
             shutil.rmtree(tmp, ignore_errors=True)
 
 
-@click.command("bench", context_settings={"help_option_names": ["-h", "--help"]})
-@click.argument("models", nargs=-1, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--out-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="keep the bundles (and the generated CAD part) here [default: a "
-                   "temporary directory, removed]")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
-              default=None, help="also write the figures and the machine as JSON")
-@click.option("--repeat", type=click.IntRange(1), default=1, show_default=True,
-              help="runs per model; the table shows medians")
-@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
-              help="settings override for every bake, as in `hbake bake --set`")
-@click.option("--method", type=click.Choice(BENCH_METHODS), default=None,
-              help="baking route of every bake [default: the settings' (cage)]; 'both' bakes "
-                   "each model by the cage and the preserve route, rows side by side (a "
-                   "preserve bake that cannot reach its target is listed, not failed)")
-@click.option("--models-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              envvar=MODELS_ENV, show_envvar=True,
-              help="folder of the shared models [default: ../shared/models beside the repository]")
-@click.option("--skip-missing", is_flag=True,
-              help="leave missing shared models out of the table with a warning instead of failing")
-def bench_command(models, out_dir, json_path, repeat, sets, method, models_dir, skip_missing):
-    """Bake the shared models and the generated 650k-triangle CAD part; print a table.
-
-    MODELS: mesh files to bake instead (in meters unless the file name is one of
-    the shared models). Each bake runs in a fresh process, so peak RSS is per model.
-    """
-    from hbake.settings import parse_value
-
-    overrides = {}
-    for item in sets:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise click.UsageError(f"--set {item}: expected KEY=VALUE")
-        overrides[key.strip()] = parse_value(value.strip())
-    if method is not None:
-        overrides["method"] = method
-    try:
-        run_bench(list(models) or None, out_dir, json_path, repeat, overrides,
-                  log=lambda msg: click.echo(msg), models_dir=models_dir, allow_missing=skip_missing)
-    except (RuntimeError, FileNotFoundError) as exc:
-        click.echo(f"hbake bench: error: {exc}", err=True)
-        sys.exit(1)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry of ``python -m hbake.bench`` (the child protocol, or the bench command)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["--child"]:
         return _child(*argv[1:5])
+    from hbake.cli_lab import bench_command
+
     bench_command.main(args=argv, prog_name="hbake bench")
     return 0
 

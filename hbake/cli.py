@@ -309,15 +309,15 @@ from hbake.cli_bundle import inspect, validate  # noqa: E402
 main.add_command(validate)
 main.add_command(inspect)
 
-from hbake.bench import bench_command  # noqa: E402
+from hbake.cli_lab import bench_command  # noqa: E402
 
 main.add_command(bench_command, "bench")
 
-from hbake.texture import texture_command  # noqa: E402
+from hbake.cli_lab import texture_command  # noqa: E402
 
 main.add_command(texture_command, "texture")
 
-from hbake.plot import plot_command  # noqa: E402
+from hbake.cli_lab import plot_command  # noqa: E402
 
 main.add_command(plot_command, "plot")
 

@@ -26,7 +26,6 @@ Matplotlib's Agg backend renders off screen; the same trace gives the same pictu
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
 import subprocess
@@ -34,7 +33,6 @@ import sys
 import tomllib
 from pathlib import Path
 
-import click
 import numpy as np
 
 from hbake.errors import HbakeError, InputInvalidError, InputMissingError, OutputUnwritableError
@@ -408,53 +406,3 @@ def plot_trace(trace: Path, figures=DEFAULT_FIGURES, out: Path | None = None, sc
         sig = sound.trace_vibration(tr, sound.DEFAULT_RATE, cutoff, audio_source)
         paths.append(sound.write_wav(out / f"{stem}.wav", sig, sound.DEFAULT_RATE))
     return paths
-
-
-def _vec3(ctx, param, value):
-    try:
-        v = tuple(float(x) for x in value.split(","))
-    except ValueError:
-        raise click.BadParameter(f"{value!r}: expected X,Y,Z") from None
-    if len(v) != 3 or not all(math.isfinite(x) for x in v) or not any(v):
-        raise click.BadParameter(f"{value!r}: expected three finite numbers, not all zero")
-    return v
-
-
-@click.command("plot", context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
-               short_help="Figures of a session trace: Fig. 7, 8, 9 styles and a scene picture.")
-@click.argument("trace", type=click.Path(path_type=Path, dir_okay=True, readable=False))
-@click.option("--figure", "figures", multiple=True, type=click.Choice(FIGURES + ("all",)),
-              help="Figure to make (repeatable) [default: fig7, fig8, fig9; 'all' adds the scene "
-                   "picture, which needs --scene].")
-@click.option("-o", "--out", type=click.Path(path_type=Path, file_okay=False),
-              help="Folder of the PNGs, made if missing [default: the trace's folder]; each is named "
-                   "<trace stem>.<figure>.png.")
-@click.option("--scene", type=click.Path(path_type=Path, readable=False),
-              help="The scene file the trace was run from (for the scene picture).")
-@click.option("--frame", type=int, help="Frame of the scene picture [default: the middle one].")
-@click.option("--axis", callback=_vec3, default="0,0,1", show_default=True, metavar="X,Y,Z",
-              help="fig8: the contact normal n (rotation about it, translation along it).")
-@click.option("--hrt", "hrt", type=click.Path(path_type=Path),
-              help="The hrt binary for the scene picture [default: $HRT, else hrt on PATH].")
-@click.option("--audio", is_flag=True,
-              help="Also write <trace stem>.wav: the contact force's vibration (above --audio-cutoff) "
-                   "as 44.1 kHz mono sound, in real time.")
-@click.option("--audio-source", type=click.Choice(["contact", "device"]), default="contact", show_default=True,
-              help="The force heard: the texture contact force on the probe, or the force written to the device.")
-@click.option("--audio-cutoff", type=click.FloatRange(min=0.1, max=2000.0), default=20.0, show_default=True,
-              metavar="HZ", help="High-pass cutoff of the sound (Hz): slower changes are force, not vibration.")
-def plot_command(trace, figures, out, scene, frame, axis, hrt, audio, audio_source, audio_cutoff):
-    """Make the paper's figures (Fig. 7, 8 and 9 styles, a scene picture) from the trace TRACE of `hrt run`.
-
-    Exit codes: 0 ok, 1 internal error, 2 bad option, 3 trace or scene missing, 4 trace or
-    scene invalid, 6 output not writable, 7 hrt query failed.
-    """
-    figs = list(dict.fromkeys(f for x in (figures or DEFAULT_FIGURES)
-                              for f in (FIGURES if x == "all" else (x,))))
-    try:
-        for p in plot_trace(trace, figs, out, scene, frame, axis, str(hrt) if hrt else None,
-                            audio, audio_source, audio_cutoff):
-            click.echo(str(p))
-    except HbakeError as exc:
-        click.echo(f"hbake: error: {exc}", err=True)
-        sys.exit(exc.exit_code)
