@@ -12,6 +12,7 @@
 #include <random>
 
 #include "hrt/depth.h"
+#include "hrt/force.h"
 #include "synthetic.h"
 
 namespace hrt {

@@ -11,6 +11,7 @@
 #include <limits>
 
 #include "hrt/depth.h"
+#include "hrt/force.h"
 #include "synthetic.h"
 
 namespace hrt {

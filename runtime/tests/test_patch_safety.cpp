@@ -10,6 +10,7 @@
 #include <string>
 
 #include "hrt/depth.h"
+#include "hrt/force.h"
 #include "hrt/scene.h"
 #include "test_contact_models.h"
 #include "test_io_writer.h"

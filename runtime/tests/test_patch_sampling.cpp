@@ -7,6 +7,7 @@
 #include <algorithm>
 
 #include "hrt/depth.h"
+#include "hrt/force.h"
 #include "hrt/scene.h"
 #include "synthetic.h"
 #include "test_contact_models.h"

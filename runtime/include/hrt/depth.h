@@ -1,5 +1,6 @@
-// Directional penetration depth (paper Eq. 8-9) and the texture force model
-// (Eq. 3-7) on the CPU.
+// Directional penetration depth (paper Eq. 8-9) and its gradient (Eq. 7) on
+// the CPU; the force model that turns them into a wrench (Eq. 3-6) is in
+// hrt/force.h.
 //
 // For one contact patch (contact.h: n, u, v, window, tris_a, tris_b):
 //   1. The coarse triangles of A (tris_a) and of B (tris_b) are rasterized
@@ -461,34 +462,5 @@ constexpr double kKinkDecided = 0.10;
 // straddle (optional) gets the weight of the one-sided difference in the
 // result (0: the central difference, 1: the steeper one-sided one).
 double kink_safe_difference(double d_plus, double d_zero, double d_minus, double step, double* straddle = nullptr);
-
-// The force model on a patch from its DepthGradient (what
-// compute_patch_wrench does after compute_depth_gradient): patch.covered,
-// delta, grad, curvature (second differences of Eq. 7), the contact region
-// and the wrench (Eq. 5-6); the undersampling warning as compute_patch_wrench
-// counts it.
-void apply_depth_gradient(const Model& A, const Model& B, ContactPatch& patch, const DepthGradient& g,
-                          const ForceOptions& opt, DepthWarnings* warnings = nullptr, bool* warned = nullptr);
-
-// The whole force model for one patch: fills patch.delta, grad, covered,
-// force and torque (on A, world; torque about A's centre of mass
-// A.mass.center_of_mass placed by pose_a). An uncovered patch gets delta = 0,
-// grad = (0, 0, 1, 0, 0, 0), covered = false and no wrench.
-// `warnings` (optional) counts the Sec. 7.2 undersampling once per patch
-// lifetime: the caller keeps one bool per tracked patch and passes it as
-// `warned` (set to true the first time it is counted); with warned ==
-// nullptr every call that undersamples counts.
-void compute_patch_wrench(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b, ContactPatch& patch,
-                          const ForceOptions& opt, DepthScratch& scratch, DepthWarnings* warnings = nullptr,
-                          bool* warned = nullptr);
-
-// Eq. 5-6 alone: force and torque on A (world) from delta and its gradient.
-void wrench_from_gradient(const ContactPatch& patch, double delta, const Vec6& grad, double stiffness, Vec3& force,
-                          Vec3& torque);
-
-// The opposite wrench on B about B's centre of mass c_b, given A's (force F,
-// torque T_a about c_a): (-F, -T_a - (c_a - c_b) x F).
-void wrench_on_b(const Vec3& force_a, const Vec3& torque_a, const Vec3& c_a, const Vec3& c_b, Vec3& force_b,
-                 Vec3& torque_b);
 
 }  // namespace hrt

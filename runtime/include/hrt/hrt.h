@@ -20,6 +20,7 @@
 #include "hrt/model.h"    // Model, load_bundle, LoadOptions, BundleError
 #include "hrt/contact.h"  // Window, ContactPatch
 #include "hrt/depth.h"    // ForceOptions, HeightMode, Eq. 7-9 on one patch
+#include "hrt/force.h"    // the force model, Eq. 3-6 on one patch
 #include "hrt/depth_backend.h"
 #include "hrt/scene.h"        // Scene, SceneOptions, State, frame()
 #include "hrt/dynamics.h"     // probe dynamics and virtual coupling

@@ -119,6 +119,7 @@
 
 #include "collision/collision.h"
 #include "hrt/depth.h"
+#include "hrt/force.h"
 #include "hrt/scene.h"
 #include "parallel/task_pool.h"
 

@@ -5,6 +5,7 @@
 #include <limits>
 
 #include "hrt/depth.h"
+#include "hrt/force.h"
 
 namespace hrt {
 
