@@ -8,6 +8,7 @@
 #include <cmath>
 #include <random>
 
+#include "depth/internal.h"
 #include "hrt/depth.h"
 #include "hrt/force.h"
 #include "synthetic.h"

@@ -28,6 +28,7 @@
 #include <string>
 #include <vector>
 
+#include "depth/internal.h"
 #include "hrt/depth_backend.h"
 #include "hrt/gl_depth.h"
 #include "env_guard.h"

@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <limits>
 
+#include "depth/internal.h"
 #include "hrt/depth.h"
 #include "hrt/force.h"
 #include "synthetic.h"

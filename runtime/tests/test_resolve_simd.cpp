@@ -16,6 +16,7 @@
 #include <random>
 #include <vector>
 
+#include "depth/internal.h"
 #include "hrt/depth.h"
 #include "hrt/scene.h"
 #include "test_contact_models.h"

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "depth/internal.h"
 #include "depth/reduce.h"
 #include "hrt/depth.h"
 #include "parallel/task_pool.h"

@@ -13,6 +13,7 @@
 #include <cstdint>
 #include <limits>
 
+#include "depth/internal.h"
 #include "hrt/model.h"
 #include "hrt/surface.h"
 

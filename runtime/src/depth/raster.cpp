@@ -8,6 +8,7 @@
 #include <smmintrin.h>
 #endif
 
+#include "depth/internal.h"
 #include "depth/mesh_rows.h"
 #include "depth/reduce.h"
 #include "depth/resolve_simd.h"

@@ -17,6 +17,7 @@
 
 #include <epoxy/gl.h>
 
+#include "depth/internal.h"
 #include "depth/mesh_rows.h"
 #include "hrt/gl_depth.h"
 
