@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Write the procedural test models (hbake/procedural.py) into a folder.
+"""Write the procedural test models (hbake/lab/procedural.py) into a folder.
 
     .venv/bin/python examples/make_models.py out/models                 # all of them
     .venv/bin/python examples/make_models.py out/models ridged_block rasp
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import click
 
-from hbake import procedural
+from hbake.lab import procedural
 
 
 @click.command(context_settings={"help_option_names": ["-h", "--help"]})

@@ -34,13 +34,13 @@ def main() -> int:
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
-    from hbake.viewer import Viewer
+    from hbake.viz.viewer import Viewer
 
     v = Viewer(scene, trace, port=0, max_triangles=a.max_triangles)
     v.show_frame(a.frame)
     # The camera on the contact: the first patch's point on the torus, from above and aside.
     import numpy as np
-    from hbake.viewer import MM
+    from hbake.viz.viewer import MM
     c = v.last["contacts"]
     focus = np.asarray(c["p_b"][0]) * MM if len(c["delta"]) else np.asarray(v.last["probe"][:3]) * MM
     cam = v.server.initial_camera

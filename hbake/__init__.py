@@ -1,7 +1,7 @@
 """hbake: bake high-resolution triangle meshes into haptic bundles.
 
 Library first: ``hbake.bake(input, output, settings)`` does the work (see
-``hbake.pipeline``); ``hbake.cli`` only turns command-line options into a
+``hbake.routes.pipeline``); ``hbake.cli`` only turns command-line options into a
 ``BakeSettings``. The bundle format is specified in docs/bundle-format.md.
 """
 from __future__ import annotations
@@ -14,6 +14,6 @@ except _metadata.PackageNotFoundError:  # running from a source tree without ins
     __version__ = "0.1.0"
 
 from hbake.settings import BakeSettings  # noqa: E402
-from hbake.pipeline import bake  # noqa: E402
+from hbake.routes.pipeline import bake  # noqa: E402
 
 __all__ = ["bake", "BakeSettings", "__version__"]

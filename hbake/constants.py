@@ -133,14 +133,14 @@ PACK_SEARCH_MAX_STEPS = 14
 #: the whole atlas and leaves the rest of the page empty (41.6 % covered). The search is
 #: therefore repeated with the charts longer than each of these fractions of the page's
 #: side (at the density that would fill the page) cut across into slabs, and the densest
-#: packing of all is kept (hbake/parameterize.py). Measured with `hbake bake` on the
+#: packing of all is kept (hbake/stages/parameterize.py). Measured with `hbake bake` on the
 #: shared models (docs/guides/baking.md, "The atlas"): 1 cuts only the charts that cannot fit the page
 #: (hammer 41.6 -> 61.5 %), 0.5 and 0.3 gain on terrain-like and organic parts; finer
 #: cuts only add padding.
 PACK_SPLIT_FRACTIONS = (1.0, 0.5, 0.3)
 #: A packing is accepted only when every chart of at least PACK_DENSITY_MIN_CHART_TEXELS2
 #: texels^2 has at least this fraction of the requested texel density (linear): xatlas
-#: shrinks charts that do not fit its page on their own (see hbake/parameterize.py).
+#: shrinks charts that do not fit its page on their own (see hbake/stages/parameterize.py).
 #: Charts it does not shrink keep their density to about 2 % (measured on a 160 mm bar;
 #: they come out slightly denser), so 0.97 passes them and refuses the 8x shrink
 #: measured on the rasp as well as a 10 % one.
@@ -161,7 +161,7 @@ BAKE_BORDER_TEXELS = 1.5
 #: coordinates are >= -this (a texel centre on a shared edge belongs to both triangles;
 #: the lower triangle id wins).
 INSIDE_EPS = 1e-9
-#: Rays of border texels reach at most this many texel sizes (see hbake/atlas.py).
+#: Rays of border texels reach at most this many texel sizes (see hbake/stages/atlas.py).
 #: A border texel's origin is extrapolated past its triangle's edge by at most this many
 #: texel sizes per texel of UV distance. A well-shaped triangle maps one texel to about
 #: one texel size, so the cap only bites on needle UV triangles, whose affine map
@@ -174,7 +174,7 @@ BORDER_RAY_TEXELS = 4.0
 #: 2x2 quad with such an edge). Why 4: the full surface's step per texel is sqrt(1 + s^2)
 #: times the coarse one for a slope s, 3.9 at 75 degrees.
 DISCONTINUITY_TEXELS = 4.0
-#: The bake moves texels (hbake/atlas.py, repair_jumps) whose edge midpoints to uncut
+#: The bake moves texels (hbake/stages/atlas.py, repair_jumps) whose edge midpoints to uncut
 #: neighbours lie farther than this many texel sizes off the full surface. Why half a
 #: texel: a lookup where the relief is resolved strays by at most about half a texel step
 #: (the atlas samples once per texel, Sec. 7.2); a chord farther off is a jump, not relief.
@@ -240,7 +240,7 @@ RELIEF_WARN_P95_TEXELS = 0.5
 # --- seeds ---------------------------------------------------------------------------------
 DEFAULT_SEED = 0
 
-# --- the parameterization-preserving route (hbake/preserve.py) -----------------------------
+# --- the parameterization-preserving route (hbake/routes/preserve.py) -----------------------------
 #: Proxy size whose charts are carried to the full mesh; 0 = simplify.target_faces (the
 #: proxy is then the cage route's coarse mesh, whose xatlas charts take well under a second).
 DEFAULT_PRESERVE_PROXY_FACES = 0

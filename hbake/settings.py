@@ -8,7 +8,7 @@ default (taken from ``hbake.constants``) in its metadata; ``describe()`` lists t
 
 Route-specific options live in a table named after the route: ``[cage]`` holds the
 options of the cage bake (``method = "cage"``), ``[preserve]`` those of the
-parameterization-preserving route (``method = "pp"``, alias ``"preserve"``; hbake/preserve.py)
+parameterization-preserving route (``method = "pp"``, alias ``"preserve"``; hbake/routes/preserve.py)
 and of ``method = "auto"``, while the shared stages (load, simplify, parameterize, atlas,
 decompose, quality) keep theirs.
 """

@@ -1,7 +1,7 @@
 """Full-surface depth harness (issue 8, "Tests that must exist": the bound and the brute force).
 
 The real chain: meshes (procedural, or ../shared/models decimated and scaled) are baked
-with ``hbake.pipeline.bake``; ``hrt query --json`` runs at given poses and
+with ``hbake.routes.pipeline.bake``; ``hrt query --json`` runs at given poses and
 resolutions; and for every contact patch the truth is cast on the two FULL-resolution
 meshes (the meshes given to the bake) through the very texel centres of the patch
 window, along the patch's n:
@@ -58,10 +58,10 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from hbake import procedural as P
+from hbake.lab import procedural as P
 
 REPO = Path(__file__).resolve().parents[1]
-# $HBAKE_MODELS, else ../shared/models beside the repository (hbake.bench.shared_models_dir).
+# $HBAKE_MODELS, else ../shared/models beside the repository (hbake.lab.bench.shared_models_dir).
 SHARED_MODELS = Path(os.environ["HBAKE_MODELS"]) if os.environ.get("HBAKE_MODELS") else REPO.parent / "shared" / "models"
 
 RESOLUTIONS = (50, 128)

@@ -29,7 +29,7 @@ import numpy as np
 import trimesh
 
 import fullsurface as FS
-from hbake import procedural as P
+from hbake.lab import procedural as P
 
 REPO = FS.REPO
 MM = 1e-3

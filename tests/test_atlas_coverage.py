@@ -1,6 +1,6 @@
 """How much of the atlas the charts cover, through the real ``hbake bake``.
 
-One texel density for every chart (hbake/parameterize.py) makes the longest chart set
+One texel density for every chart (hbake/stages/parameterize.py) makes the longest chart set
 the density of the whole atlas: a chart must fit the page whole. The hammer's handle
 (four strips the length of the part) held the hammer at 41.6 % coverage and a 73.8 um
 texel in cm; a 160 x 20 x 6 mm bar (the rasp's body) at 34 %. Charts longer than the
@@ -34,9 +34,9 @@ import pytest
 import trimesh
 
 from hbake import constants as C
-from hbake.bench import shared_models_dir
+from hbake.lab.bench import shared_models_dir
 from hbake.bundle import read_coarse_ply, validate_bundle
-from hbake.parameterize import chart_labels, texel_coordinates
+from hbake.stages.parameterize import chart_labels, texel_coordinates
 
 REPO = Path(__file__).resolve().parent.parent
 

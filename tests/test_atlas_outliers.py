@@ -1,5 +1,5 @@
 """Issue 8, cause 5 ("Outliers and jumps"): the bake's repair of jumps between
-neighbouring texels (hbake/atlas.py, repair_jumps) on a case with a known answer, and
+neighbouring texels (hbake/stages/atlas.py, repair_jumps) on a case with a known answer, and
 format 1.1's compatibility with 1.0.
 
 The test on the shared models' bundles (every reconstructed point within a texel of the
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from hbake import constants as C
-from hbake.atlas import repair_jumps, texel_edges
+from hbake.stages.atlas import repair_jumps, texel_edges
 from hbake.bundle import FORMAT_VERSION, manifest_bytes, read_bundle, validate_bundle
 
 GOLDEN = Path(__file__).resolve().parent / "golden"

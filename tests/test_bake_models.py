@@ -1,6 +1,6 @@
 """Procedural models and end-to-end bakes (issue 2, item 7 and "Tests that must exist").
 
-Part 1 checks the generators of hbake/procedural.py: exact triangle counts
+Part 1 checks the generators of hbake/lab/procedural.py: exact triangle counts
 (Table 1), closed and outward meshes (checked by point-in-solid queries, not by
 the winding alone), byte-identical output, and that the documented wavelength
 and amplitude of each relief are what the mesh carries (measured by an FFT of
@@ -21,7 +21,7 @@ import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from hbake import procedural as P
+from hbake.lab import procedural as P
 
 
 # ==========================================================================
@@ -241,7 +241,7 @@ def test_cad_texture(meshes):
 from pathlib import Path  # noqa: E402
 
 from hbake import bake  # noqa: E402
-from hbake.bench import SHARED_MODELS, SHARED_OVERRIDES, shared_models_dir  # noqa: E402
+from hbake.lab.bench import SHARED_MODELS, SHARED_OVERRIDES, shared_models_dir  # noqa: E402
 from hbake.bundle import atlas_lookup, read_bundle, validate_bundle  # noqa: E402
 from hbake.settings import BakeSettings  # noqa: E402
 
@@ -385,7 +385,7 @@ def procedural_bundles(tmp_path_factory):
 KNOWN_PROCEDURAL: dict[str, str] = {}
 KNOWN_SHARED: dict[str, str] = {}
 
-#: Settings per shared model where the defaults do not suit it: hbake.bench.SHARED_OVERRIDES
+#: Settings per shared model where the defaults do not suit it: hbake.lab.bench.SHARED_OVERRIDES
 #: (the planetary gears; the measurements are there).
 SHARED_BAKES = SHARED_OVERRIDES
 
@@ -601,11 +601,11 @@ def reconstruction_offsets(bundle, full_vertices, full_faces):
     (all baked: a 4-neighbour of a covered texel lies within a texel of its UV triangle)
     that the rule does not cut. Returns (points, distances, description of each item).
 
-    Distances are exact closest-point distances (hbake.geometry.closest_points) for the
+    Distances are exact closest-point distances (hbake.stages.geometry.closest_points) for the
     texels; a midpoint is within d(p) + |p - q| / 2 of the surface (triangle inequality),
     so only the midpoints where that bound passes OUTLIER_TEXELS are queried; the others
     carry the bound, which is below the test's limit."""
-    from hbake.geometry import closest_points
+    from hbake.stages.geometry import closest_points
 
     tx = bundle.manifest["atlas"]["texel_size"]
     img = bundle.atlas.astype(np.float64)
@@ -644,7 +644,7 @@ def test_atlas_outliers(name, shared_bundles):
     Reuses the bakes of test_bake_shared; the manifest records the bake's repair."""
     from scipy.spatial import cKDTree
 
-    from hbake.load import load_mesh
+    from hbake.stages.load import load_mesh
     from hbake.settings import LoadSettings
 
     path, _ = shared_bundles(name)

@@ -35,11 +35,11 @@ import trimesh
 
 from hbake import bake
 from hbake import constants as C
-from hbake import procedural as P
+from hbake.lab import procedural as P
 from hbake.bundle import read_bundle
-from hbake.parameterize import xatlas_scale
+from hbake.stages.parameterize import xatlas_scale
 from hbake.settings import BakeSettings
-from hbake.simplify import collapse_scale
+from hbake.stages.simplify import collapse_scale
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
 

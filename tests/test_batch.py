@@ -149,8 +149,8 @@ def test_batch_skips_what_is_up_to_date_and_rebakes_what_changed(first_batch, mo
 
 def test_up_to_date_checks_the_manifest_fields(first_batch, models, tmp_path):
     """The four recorded fields decide, and a damaged file forces a re-bake."""
-    from hbake.batch import sha256_file, up_to_date
-    from hbake.pipeline import library_versions
+    from hbake.batch.jobs import sha256_file, up_to_date
+    from hbake.routes.pipeline import library_versions
 
     out0, _, _ = first_batch
     bundle = tmp_path / "a.hbundle"
@@ -180,7 +180,7 @@ def test_up_to_date_checks_the_manifest_fields(first_batch, models, tmp_path):
 def test_memory_budget_serialises_jobs(models, low_config, tmp_path):
     """-j 2 with a budget that holds one estimated bake: the two bakes never overlap;
     the measured peak RSS per job is in the report."""
-    from hbake.batch import RSS_BASE_BYTES
+    from hbake.batch.jobs import RSS_BASE_BYTES
 
     src = tmp_path / "in"
     src.mkdir()
@@ -198,7 +198,7 @@ def test_memory_budget_serialises_jobs(models, low_config, tmp_path):
 
 
 def test_memory_model_scales_up_on_measurement():
-    from hbake.batch import MemoryModel
+    from hbake.batch.jobs import MemoryModel
 
     mm = MemoryModel(budget=10**10)
     job = {"estimated_rss": 1000}
@@ -230,7 +230,7 @@ def test_batch_user_errors_are_one_line(models, tmp_path):
 
 
 def test_count_triangles_from_headers(tmp_path):
-    from hbake.batch import count_triangles
+    from hbake.batch.jobs import count_triangles
 
     m = trimesh.creation.icosphere(subdivisions=2)
     for ext in ("ply", "stl", "obj", "off"):

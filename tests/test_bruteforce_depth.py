@@ -1,7 +1,7 @@
 """The literal Eq. 8-9 of format 1.0 (``hrt query --heights coarse``) and the
 atlas's reconstruction, on two baked procedural models.
 
-Two procedural models (hbake.procedural: the ridged block of Table 1 and the
+Two procedural models (hbake.lab.procedural: the ridged block of Table 1 and the
 grating turned 23 degrees) are baked into bundles, posed in contact, and
 ``hrt query --heights coarse --json`` reports each contact patch's window,
 triangle lists and delta. For each patch, over the same window texel centres:
@@ -37,10 +37,10 @@ import pytest
 from hrt_locate import hrt_binary
 from scipy.spatial.transform import Rotation
 
-from hbake import procedural as P
+from hbake.lab import procedural as P
 from hbake.bundle import atlas_lookup, read_bundle
-from hbake.geometry import closest_points
-from hbake.pipeline import bake
+from hbake.stages.geometry import closest_points
+from hbake.routes.pipeline import bake
 from hbake.settings import BakeSettings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -54,7 +54,7 @@ TOL_RT = 1e-7
 # ~1.1 mm, and a bake ray from the top face's rim can reach the wall.
 RIM = 1.5e-3
 # The procedural meshes are piecewise-linear interpolants of a sine of
-# amplitude A and wavelength L (hbake.procedural): slope <= A k, and the slope
+# amplitude A and wavelength L (hbake.lab.procedural): slope <= A k, and the slope
 # changes by at most A k^2 h between neighbouring cells of size h (the block:
 # 12 rows per wavelength; the grating: 0.47 mm cells, diagonal 0.66 mm).
 K = 2 * math.pi / P.BLOCK_WAVELENGTH
@@ -211,7 +211,7 @@ def test_literal_eq8_and_reconstruction(scene_name, N, baked, record_property):
 
         # (b) Reconstruction: the atlas points lie on the full surface, away
         # from the side walls. Measured as the closest-point distance (MeshLab's
-        # exact search, hbake.geometry.closest_points), not along n: where n is
+        # exact search, hbake.stages.geometry.closest_points), not along n: where n is
         # steep to the surface (side patches), the ray through an atlas point
         # grazes the ridges and meets a neighbouring crest first.
         t_a, t_b = bun_a.manifest["atlas"]["texel_size"], bun_b.manifest["atlas"]["texel_size"]

@@ -335,7 +335,7 @@ def test_write_is_atomic(tmp_path, monkeypatch, exc, cube):
     def boom(*a, **k):
         raise exc("stop")
 
-    monkeypatch.setattr(hb, "write_pieces_ply", boom)
+    monkeypatch.setattr(hb._impl, "write_pieces_ply", boom)
     with pytest.raises(exc):
         write_bundle(tmp_path / "new.hbundle", cube_data())
     with pytest.raises(exc):
@@ -816,7 +816,7 @@ def test_committed_corrupt_variants_are_current(tmp_path):
 
 
 def _run_cli(cmd, *args):
-    from hbake.cli_bundle import inspect, validate
+    from hbake.cli.bundle import inspect, validate
     return CliRunner().invoke({"validate": validate, "inspect": inspect}[cmd], [str(a) for a in args])
 
 

@@ -34,7 +34,7 @@ import trimesh
 import fullsurface as FS
 import sessions as S
 import trace as T
-from hbake import procedural as P
+from hbake.lab import procedural as P
 from test_session_cli import RES, SLAB_TOP, hrt_run, objects, write_scene
 
 MM = 1e-3

@@ -86,7 +86,7 @@ LIFT_FRACTION = 0.5
 
 
 def profile(phase, kind):
-    from hbake.texture import profile_value
+    from hbake.lab.texture import profile_value
     return profile_value(np.asarray(phase), kind, FLANK)
 
 
@@ -183,7 +183,7 @@ def closed_depth(pos, q, kind, step=0.05 * MM):
 
 def twist(q):
     """Rotation of A about z relative to FLIP (rad)."""
-    from hbake.plot import twist_angle
+    from hbake.viz.plot import twist_angle
     return twist_angle(np.asarray(q), np.asarray(FLIP), np.array([0.0, 0.0, 1.0]))
 
 

@@ -1,6 +1,6 @@
 """Issue 8: the runtime's depth against the FULL-resolution meshes, through the real chain.
 
-``hbake bake`` (``hbake.pipeline.bake``), then ``hrt query --json`` at N = 50 and 128,
+``hbake bake`` (``hbake.routes.pipeline.bake``), then ``hrt query --json`` at N = 50 and 128,
 then rays along each patch's n on the two full meshes through the very texel centres
 of its window (tests/fullsurface.py: the truth, the keep rule and the bound, all
 computed from the full meshes before anything is compared):

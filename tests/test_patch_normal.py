@@ -23,7 +23,7 @@ Bounds, fixed in advance:
   directional depth is m / (m . n) whatever n (so F is along m), up to the
   finite differences over one grid texel (0.24 mm at N = 256, 1/20 of the
   wavelength) and the mesh being the piecewise-linear interpolant of the sine
-  (12 rows per wavelength, hbake.procedural);
+  (12 rows per wavelength, hbake.lab.procedural);
 * |F| within 8.5 % of the closed form: a tilt phi toward m scales delta by
   cos(theta) / cos(theta - phi) and |grad delta| by the same (theta = 26.9 deg,
   the flank's angle): 4.2 % at 2.5 degrees, plus 2 x 17 um of the
@@ -39,8 +39,8 @@ import numpy as np
 import pytest
 from hrt_locate import hrt_binary
 
-from hbake import procedural as P
-from hbake.pipeline import bake
+from hbake.lab import procedural as P
+from hbake.routes.pipeline import bake
 from hbake.settings import BakeSettings
 
 K_STIFF = 1000.0

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hbake import plot as P
+from hbake.viz import plot as P
 
 COLUMNS = ["t", "frame", "probe_x", "probe_y", "probe_z", "probe_qx", "probe_qy", "probe_qz", "probe_qw",
            "contact_fx", "contact_fy", "contact_fz", "contact_tx", "contact_ty", "contact_tz", "patches",

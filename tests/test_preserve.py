@@ -6,7 +6,7 @@
   chart's full UV triangles than any other chart's, checked by brute force here); the
   stored atlas a point of the full surface at every covered texel, and the bilinear
   reconstruction between covered neighbours within 1 texel of the full surface (exact
-  closest points, ``hbake.geometry.closest_points``); penetration depths of a bumpy sphere
+  closest points, ``hbake.stages.geometry.closest_points``); penetration depths of a bumpy sphere
   pressed on the torus at 23/31, 67/-17 and 158/74 degrees (u around z, v around the
   tube: not multiples of 45) within the issue-8 bound against rays cast on the full
   meshes (tests/fullsurface.py: ``evaluate_patch`` and ``patch_bound``, computed from the
@@ -41,9 +41,9 @@ import trimesh
 import fullsurface as FS
 from scipy.spatial.transform import Rotation
 
-from hbake import procedural as P
+from hbake.lab import procedural as P
 from hbake.bundle import read_bundle
-from hbake.geometry import closest_points
+from hbake.stages.geometry import closest_points
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests" / "golden"))
@@ -146,10 +146,10 @@ def test_torus_coarse_uvs_inside_their_charts(bakes, tmp_path):
     the nearest-chart test is a brute force over every full UV triangle near the point,
     independent of the route's own KD-tree search."""
     from hbake.bundle import read_bundle
-    from hbake.preserve import bake_preserve
+    from hbake.routes.preserve import bake_preserve
     from hbake.settings import BakeSettings
 
-    from hbake.load import load_mesh
+    from hbake.stages.load import load_mesh
 
     model = bakes["torus_pp"]
     s = BakeSettings.from_dict(model.manifest["settings"])
@@ -393,7 +393,7 @@ def test_auto_weighs_the_worst_error_too():
     its p95 nor its worst error is more than a cage texel above the cage bundle's: the
     rocker arm's preserve bundle (p95 within the bound, worst 6.8 mm = 4.4 of its texels)
     against the cage's 1.3 mm worst is refused, naming the worst error."""
-    from hbake.pipeline import choose_route
+    from hbake.routes.pipeline import choose_route
 
     cage = {"texel_size": 1.2e-3, "p95_m": 0.4e-3, "max_m": 1.3e-3}
     pp = {"triangles": 600, "coarse_to_full_p95_texels": 0.3, "full_to_coarse_p95_texels": 0.4,

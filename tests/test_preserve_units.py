@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from hbake.bench import shared_models_dir
-from hbake.load import load_mesh
-from hbake.preserve import bake_preserve, degenerate_footprints
+from hbake.lab.bench import shared_models_dir
+from hbake.stages.load import load_mesh
+from hbake.routes.preserve import bake_preserve, degenerate_footprints
 from hbake.settings import BakeSettings
 
 #: $HBAKE_MODELS, else ../shared/models beside the repository (the project's one setting).

@@ -137,7 +137,7 @@ def test_validate_infinite_number_in_manifest_is_a_schema_error(cube):
 # --------------------------------------------------------------------------- B: pieces, atlas
 
 def _sphere_hull(n: int, rng, centre, radius):
-    from hbake.mass import convex_hull_mesh
+    from hbake.stages.mass import convex_hull_mesh
     d = rng.normal(size=(n, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     pts = (np.asarray(centre) + radius * d).astype(np.float32).astype(np.float64)
@@ -352,7 +352,7 @@ def test_obj_face_index_zero_is_refused_with_its_line(tmp_path):
 
 
 def test_obj_zero_index_scan_ignores_other_tokens():
-    from hbake.load import _OBJ_ZERO_INDEX
+    from hbake.stages.load import _OBJ_ZERO_INDEX
     for ok in (b"f 10 20 30\n", b"f 1/0/1 2 3\n", b"vt 0 0\n", b"v 0 0 0\n", b"f -1 -2 -3\n",
                b"f 1//0 2//0 3//0\n"):
         assert _OBJ_ZERO_INDEX.search(ok) is None, ok
@@ -412,7 +412,7 @@ def test_absurd_scales_are_refused_in_the_load_stage(tmp_path, scale, offset, wh
 
 def test_limits_of_scale_are_accepted_by_load(tmp_path):
     """Just inside each limit the load stage accepts the mesh."""
-    from hbake.load import load_mesh
+    from hbake.stages.load import load_mesh
     from hbake.settings import LoadSettings
     for scale, offset in ((5e5, -4000.0), (2e-3 / 1.7, 0.0), (1.0, 15.0)):
         src = _scaled_tetra(tmp_path, scale, offset)
@@ -435,7 +435,7 @@ def _patched_env(tmp_path: Path, code: str) -> dict:
 
 _NATIVE_STAGE = '''
 import ctypes, os
-import hbake.pipeline as _p
+import hbake.routes.pipeline as _p
 _orig = _p.parameterize
 def parameterize(*a, **k):
     {body}
@@ -543,7 +543,7 @@ def test_decompose_caps_hull_vertices(monkeypatch):
     decimation, and fails with exit 7 if that does not help."""
     import coacd
     import trimesh
-    from hbake.decompose import decompose
+    from hbake.stages.decompose import decompose
     from hbake.errors import BakeFailedError
 
     # Real CoACD: a sphere of 2562 vertices is one convex piece of 2562 vertices.

@@ -54,7 +54,7 @@ def test_report_writes_page_and_pngs(report_dir, baked):
     # The height map: a height at exactly the covered texels, relief of both signs
     # (the blob's bumps), none larger than the part.
     from hbake.bundle import read_bundle
-    from hbake.report import texel_heights
+    from hbake.viz.report import texel_heights
 
     b = read_bundle(baked[0])
     h = texel_heights(b)
@@ -97,7 +97,7 @@ def test_report_page_in_headless_chromium(report_dir, baked, tmp_path):
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import WebDriverWait
 
-    from hbake.report import flatten_figures
+    from hbake.viz.report import flatten_figures
 
     out, _ = report_dir
     manifest = json.loads((baked[0] / "manifest.json").read_text())

@@ -1,4 +1,4 @@
-"""The texture as sound (hbake/sound.py, `hbake plot --audio`), through the real chain.
+"""The texture as sound (hbake/viz/sound.py, `hbake plot --audio`), through the real chain.
 
 The 4 mm ball tip slides at 60 mm/s for 1 s over a grating of 0.8 mm wavelength (ridges at
 23 degrees to the path: 0.869 mm along it) baked by `hbake bake` (tests/sessions.py,
@@ -34,7 +34,7 @@ def root(tmp_path_factory):
 
 
 def test_the_wav_of_a_slide_peaks_at_the_ridge_frequency(root, tmp_path):
-    from hbake.sound import read_wav
+    from hbake.viz.sound import read_wav
 
     tip, strip = S.bake("tip", root), S.bake("fine_strip", root)
     z = S.STRIP_THICK + S.FINE_A + S.TIP_R - PRESS
@@ -78,7 +78,7 @@ def test_the_wav_of_a_slide_peaks_at_the_ridge_frequency(root, tmp_path):
 def test_vibration_of_a_known_signal():
     """A 30 N push plus a 0.01 N, 150 Hz ripple sampled at uneven frame times: the sound is
     the ripple (the push removed), at 150 Hz, normalized to 0.9."""
-    from hbake.sound import vibration
+    from hbake.viz.sound import vibration
 
     rng = np.random.default_rng(3)
     t = np.cumsum(rng.uniform(0.5e-3, 1.5e-3, 2000))
@@ -109,6 +109,6 @@ def test_the_sound_never_overwrites_its_trace(tmp_path):
     res = subprocess.run([exe, "plot", str(trace), "--audio", "--figure", "fig7", "-o", str(tmp_path / "o")],
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
-    from hbake.sound import read_wav
+    from hbake.viz.sound import read_wav
     x, rate = read_wav(tmp_path / "o" / "x.wav")
     assert rate == 44100 and len(x) > 0.29 * rate

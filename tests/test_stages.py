@@ -1,4 +1,4 @@
-"""Unit tests of the baking stages (hbake.load, settings, atlas, mass, geometry,
+"""Unit tests of the baking stages (hbake.stages.load, settings, atlas, mass, geometry,
 decompose, parameterize) against independent references: closed forms, brute force,
 analytic surfaces. Tolerances are stated and justified next to each assertion."""
 from __future__ import annotations
@@ -58,7 +58,7 @@ SMALL = {"simplify.target_faces": 120, "parameterize.atlas_width": 128,
 # load and repair
 # ------------------------------------------------------------------------------------------
 def test_repair_counts_and_result(tmp_path):
-    from hbake.load import load_mesh
+    from hbake.stages.load import load_mesh
 
     # a unit tetrahedron written with a duplicated vertex, a degenerate face (repeated
     # vertex), a duplicate face (reversed winding), an unused vertex and a quad face
@@ -83,12 +83,12 @@ def test_repair_counts_and_result(tmp_path):
     assert m.source_unit == "unknown" and m.scale_to_meters == 1.0
     assert any("records no unit" in w and "1 x 1 x 1 m" in w for w in warnings)
     # outward: positive signed volume 1/3 * base * height
-    from hbake.geometry import signed_volumes
+    from hbake.stages.geometry import signed_volumes
     assert signed_volumes(m.vertices, m.faces).sum() == pytest.approx(1 / 3, rel=1e-12)
 
 
 def test_units_and_inside_out(tmp_path):
-    from hbake.load import load_mesh
+    from hbake.stages.load import load_mesh
 
     box = trimesh.creation.box(extents=[10, 20, 30])
     box.invert()                                   # inside-out on purpose
@@ -99,7 +99,7 @@ def test_units_and_inside_out(tmp_path):
     assert m.source_unit == "mm" and m.scale_to_meters == 1e-3
     assert np.allclose(m.vertices.max(axis=0) - m.vertices.min(axis=0), [0.01, 0.02, 0.03])
     assert m.repair["flipped_bodies"] == 1
-    from hbake.geometry import signed_volumes
+    from hbake.stages.geometry import signed_volumes
     assert signed_volumes(m.vertices, m.faces).sum() == pytest.approx(6e-6, rel=1e-9)
     # glTF fixes the unit: meters, no warning about units
     glb = tmp_path / "box.glb"
@@ -111,7 +111,7 @@ def test_units_and_inside_out(tmp_path):
 
 @pytest.mark.parametrize("fmt", ["obj", "ply", "stl", "off"])
 def test_formats_roundtrip(tmp_path, fmt):
-    from hbake.load import load_mesh
+    from hbake.stages.load import load_mesh
 
     s = trimesh.creation.icosphere(2)
     path = tmp_path / f"s.{fmt}"
@@ -122,7 +122,7 @@ def test_formats_roundtrip(tmp_path, fmt):
 
 
 def test_ascii_stl(tmp_path):
-    from hbake.load import load_mesh
+    from hbake.stages.load import load_mesh
 
     path = tmp_path / "a.stl"
     trimesh.creation.box().export(path, file_type="stl_ascii")
@@ -132,7 +132,7 @@ def test_ascii_stl(tmp_path):
 
 
 def test_open_and_multibody_warn(tmp_path):
-    from hbake.load import load_mesh
+    from hbake.stages.load import load_mesh
 
     a = trimesh.creation.box()
     b = trimesh.creation.box()
@@ -163,7 +163,7 @@ def test_open_and_multibody_warn(tmp_path):
     ("directory", InputMissingError, "directory"),
 ])
 def test_bad_inputs(tmp_path, case, error, text):
-    from hbake.load import load_mesh
+    from hbake.stages.load import load_mesh
 
     if case == "missing":
         path = tmp_path / "nope.obj"
@@ -193,7 +193,7 @@ def test_bad_inputs(tmp_path, case, error, text):
 
 def test_duplicate_faces_and_fins():
     """Same-winding copies collapse to one face; opposite-winding pairs (a fin) cancel."""
-    from hbake.load import _drop_duplicate_faces
+    from hbake.stages.load import _drop_duplicate_faces
 
     f = np.array([[0, 1, 2], [1, 2, 0], [2, 1, 0],      # net +1: keep the first
                   [3, 4, 5], [5, 4, 3],                 # fin: both go
@@ -204,8 +204,8 @@ def test_duplicate_faces_and_fins():
         [0, 1, 2], [3, 4, 5], [6, 7, 8], [9, 10, 11]]
     # a box whose simplification left a fin (an extra reversed copy of a face plus the
     # face itself): cancelling the pair would open it, keeping one copy closes it
-    from hbake.geometry import is_closed
-    from hbake.load import repair_mesh
+    from hbake.stages.geometry import is_closed
+    from hbake.stages.load import repair_mesh
     b = trimesh.creation.box()
     faces = np.vstack([b.faces, b.faces[:1], b.faces[:1, ::-1]])     # net: one copy
     v, f2, counts = repair_mesh(b.vertices, faces, cancel_fins=True)
@@ -214,7 +214,7 @@ def test_duplicate_faces_and_fins():
 
 def test_degenerate_is_shape_relative():
     """Tiny but well-shaped faces survive (planetary_gears.stl has them); needles go."""
-    from hbake.load import degenerate_faces
+    from hbake.stages.load import degenerate_faces
 
     s = 1e-6
     v = np.array([[0, 0, 0], [s, 0, 0], [0, s, 0], [1, 0, 0], [2, 0, 1e-12], [3, 0, 0]], float)
@@ -271,7 +271,7 @@ def test_config_errors(tmp_path, text, message):
 
 
 def test_overrides_and_precedence(tmp_path):
-    from hbake.cli import build_settings
+    from hbake.cli.main import build_settings
 
     cfg = tmp_path / "c.toml"
     cfg.write_text("seed = 5\n[simplify]\ntarget_faces = 800\n[atlas]\ngutter = 6\n")
@@ -305,7 +305,7 @@ def test_closest_point_on_triangles_matches_dense_sampling():
     """Brute-force reference vs a dense barycentric grid on the triangle (edges and
     corners included): the grid's minimum can only be larger, by at most the grid step
     (longest edge / n)."""
-    from hbake.geometry import closest_point_on_triangles
+    from hbake.stages.geometry import closest_point_on_triangles
     from scipy.spatial import cKDTree
 
     rng = np.random.default_rng(3)
@@ -326,7 +326,7 @@ def test_closest_point_on_triangles_matches_dense_sampling():
 
 
 def test_closest_points_matches_brute_force():
-    from hbake.geometry import closest_point_on_triangles, closest_points
+    from hbake.stages.geometry import closest_point_on_triangles, closest_points
 
     s = bumpy_sphere(subdiv=3)
     v, f = s.vertices, s.faces
@@ -340,7 +340,7 @@ def test_closest_points_matches_brute_force():
 
 
 def test_closed_and_components():
-    from hbake.geometry import boundary_edge_count, face_components, is_closed
+    from hbake.stages.geometry import boundary_edge_count, face_components, is_closed
 
     b = trimesh.creation.box()
     assert is_closed(b.faces) and boundary_edge_count(b.faces) == 0
@@ -353,7 +353,7 @@ def test_closed_and_components():
 
 
 def test_winding_numbers():
-    from hbake.geometry import winding_numbers
+    from hbake.stages.geometry import winding_numbers
 
     s = trimesh.creation.icosphere(3)
     w = winding_numbers(np.array([[0, 0, 0], [0.5, 0.2, 0.1], [2, 0, 0], [0, 0, -1.5]]), s.vertices, s.faces)
@@ -364,7 +364,7 @@ def test_winding_numbers():
 # mass properties
 # ------------------------------------------------------------------------------------------
 def test_mass_box_closed_form():
-    from hbake.mass import polyhedron_mass_properties
+    from hbake.stages.mass import polyhedron_mass_properties
 
     a, b, c = 0.1, 0.2, 0.3
     box = trimesh.creation.box(extents=[a, b, c])
@@ -382,7 +382,7 @@ def test_mass_sphere_closed_form():
     an icosphere with edge e is about (e / r)^2 / 4 relative (each facet's cap is ~1/4 of
     the squared chord ratio); subdivision 6 has e / r ~ 0.019, so 1e-4 is ample, and the
     inertia (r^5) errs by 5/3 of that."""
-    from hbake.mass import polyhedron_mass_properties
+    from hbake.stages.mass import polyhedron_mass_properties
 
     r = 0.25
     s = trimesh.creation.icosphere(subdivisions=6, radius=r)
@@ -396,7 +396,7 @@ def test_mass_sphere_closed_form():
 def test_mass_rotated_box_vs_trimesh():
     """Off-diagonal terms: a rotated, translated box against trimesh's independent code
     and against R I R^T of the closed form."""
-    from hbake.mass import polyhedron_mass_properties
+    from hbake.stages.mass import polyhedron_mass_properties
 
     a, b, c = 1.0, 2.0, 0.5
     box = trimesh.creation.box(extents=[a, b, c])
@@ -412,7 +412,7 @@ def test_mass_rotated_box_vs_trimesh():
 
 
 def test_mass_basis_fallbacks():
-    from hbake.mass import mass_properties
+    from hbake.stages.mass import mass_properties
 
     s = trimesh.creation.icosphere(3)
     open_v, open_f = s.vertices, s.faces[:-5]
@@ -436,7 +436,7 @@ def test_bake_flat_square_against_sine_heightfield():
     within the linear interpolation error of the full grid, A k^2 s^2 / 8 (k = 2 pi / lam,
     s = grid step). Lookups through the atlas between texels add the bilinear error of
     the texel grid, A k^2 t^2 / 8 (t = texel step)."""
-    from hbake.atlas import bake_atlas
+    from hbake.stages.atlas import bake_atlas
     from hbake.bundle import atlas_lookup
 
     L, A, lam = 1.0, 0.02, 0.25
@@ -482,7 +482,7 @@ def test_bake_flat_square_against_sine_heightfield():
 def test_bake_border_texels_and_gutter():
     """Texels within 1.5 of a UV triangle are baked from it (extrapolated along its
     plane); the rest of the gutter is dilated; texels beyond the gutter stay 0."""
-    from hbake.atlas import bake_atlas
+    from hbake.stages.atlas import bake_atlas
 
     W = H = 64
     cv = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
@@ -514,7 +514,7 @@ def test_border_texels_of_a_needle_stay_near_it():
     lookups next to the needle). The extrapolation is capped at BORDER_STRETCH_TEXELS
     texel sizes per texel, so every baked texel stays within
     BAKE_BORDER_TEXELS * BORDER_STRETCH_TEXELS texel sizes of the coarse surface."""
-    from hbake.atlas import bake_atlas
+    from hbake.stages.atlas import bake_atlas
 
     W = H = 64
     cv = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float)
@@ -539,7 +539,7 @@ def test_border_texels_of_a_needle_stay_near_it():
 def test_gutter_widens_for_sliver_tips():
     """A UV sliver whose tip runs many texels past the last covered texel: every texel a
     lookup inside it can read must lie within the (effective) gutter."""
-    from hbake.atlas import bake_atlas
+    from hbake.stages.atlas import bake_atlas
     from hbake.bundle import _footprint_texels
     from hbake.settings import AtlasSettings
 
@@ -564,11 +564,11 @@ def test_gutter_widens_for_sliver_tips():
 # ------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def stages(small_model):
-    from hbake.atlas import bake_atlas
-    from hbake.decompose import decompose
-    from hbake.load import load_mesh
-    from hbake.parameterize import parameterize
-    from hbake.simplify import simplify
+    from hbake.stages.atlas import bake_atlas
+    from hbake.stages.decompose import decompose
+    from hbake.stages.load import load_mesh
+    from hbake.stages.parameterize import parameterize
+    from hbake.stages.simplify import simplify
 
     s = BakeSettings().with_overrides(SMALL)
 
@@ -597,8 +597,8 @@ def test_stages_are_deterministic(stages):
 
 def test_coarse_mesh_invariants(stages):
     s, (m, c, p, a, d), _ = stages
-    from hbake.geometry import signed_volumes
-    from hbake.simplify import coarse_is_valid
+    from hbake.stages.geometry import signed_volumes
+    from hbake.stages.simplify import coarse_is_valid
 
     assert c.closed and coarse_is_valid(c.vertices, c.faces)
     assert abs(len(c.faces) - s.simplify.target_faces) <= 4
@@ -608,7 +608,7 @@ def test_coarse_mesh_invariants(stages):
 
 def test_parameterization_invariants(stages):
     s, (m, c, p, a, d), _ = stages
-    from hbake.parameterize import chart_labels, covered_triangles
+    from hbake.stages.parameterize import chart_labels, covered_triangles
 
     assert p.uvs.dtype == np.float32 and p.uvs.shape == (len(c.faces), 3, 2)
     assert p.uvs.min() >= 0 and p.uvs.max() <= 1
@@ -626,7 +626,7 @@ def test_one_texel_density_for_every_chart():
     (measured before the fix: end caps at 8x the faces' density). Every chart must get
     the density the packer settled on, less at most the 3 % it allows
     (C.PACK_MIN_DENSITY_RATIO)."""
-    from hbake.parameterize import chart_labels, parameterize, texel_coordinates
+    from hbake.stages.parameterize import chart_labels, parameterize, texel_coordinates
     from hbake.settings import ParameterizeSettings
 
     bar = trimesh.creation.box(extents=[0.16, 0.02, 0.006])
@@ -647,7 +647,7 @@ def test_one_texel_density_for_every_chart():
 
 
 def test_small_charts_snap_onto_a_texel_centre():
-    from hbake.parameterize import covered_triangles, snap_small_charts
+    from hbake.stages.parameterize import covered_triangles, snap_small_charts
 
     W = H = 32
     faces = np.array([[0, 1, 2], [3, 4, 5]])
@@ -666,7 +666,7 @@ def test_small_charts_snap_onto_a_texel_centre():
 def test_unmapped_sliver_attaches_to_its_neighbour():
     """xatlas parks slivers it cannot flatten at UV (0, 0); they get the UVs of the edge
     they share with a mapped neighbour (third corner: its projection onto that edge)."""
-    from hbake.parameterize import attach_unmapped_faces
+    from hbake.stages.parameterize import attach_unmapped_faces
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.25, -0.01, 0]], float)
     faces = np.array([[0, 1, 2], [1, 0, 3]])          # face 1: sliver below edge 0-1
@@ -683,7 +683,7 @@ def test_unmapped_cap_attaches_across_its_long_edge():
     corner would clamp to an end of that edge, 3/4 of the cap's length from where it is
     (measured on fandisk: lookups 30 texels from their coarse point); across the long
     edge every corner keeps its place along the edge."""
-    from hbake.parameterize import attach_unmapped_faces
+    from hbake.stages.parameterize import attach_unmapped_faces
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.25, -0.001, 0], [0.1, -0.5, 0]], float)
     faces = np.array([[0, 1, 2], [3, 0, 4], [0, 3, 1]])     # face 1 across the short edge 0-3
@@ -700,7 +700,7 @@ def test_lookups_stay_in_their_chart(stages):
     of the same chart (no lookup crosses a seam)."""
     s, (m, c, p, a, d), _ = stages
     from hbake.bundle import _footprint_texels
-    from hbake.parameterize import chart_labels
+    from hbake.stages.parameterize import chart_labels
 
     charts = chart_labels(c.faces, p.uvs)
     for t in range(len(c.faces)):
@@ -737,8 +737,8 @@ def test_map_triangles_against_sampling():
     """The exact clipping test agrees with a dense point sample where the sample is
     conclusive: a triangle with a sample point inside the grown hull must be mapped, and
     a mapped triangle must come within tol (plus the plane-offset slack) of the hull."""
-    from hbake.decompose import hull_planes, map_triangles
-    from hbake.mass import convex_hull_mesh
+    from hbake.stages.decompose import hull_planes, map_triangles
+    from hbake.stages.mass import convex_hull_mesh
 
     rng = np.random.default_rng(5)
     hv, hf = convex_hull_mesh(rng.normal(size=(40, 3)))
@@ -760,7 +760,7 @@ def test_pp_method_unreachable_leaves_nothing(tmp_path, small_model):
     """Issue 11 implements method 'pp' (tests/test_preserve.py); a target it cannot reach
     with every chart border locked is its own error and writes nothing."""
     from hbake.errors import TargetUnreachableError
-    from hbake.pipeline import bake
+    from hbake.routes.pipeline import bake
 
     s = BakeSettings(method="pp").with_overrides({"simplify.target_faces": 4,
                                                   "preserve.seams": "locked"})
@@ -770,7 +770,7 @@ def test_pp_method_unreachable_leaves_nothing(tmp_path, small_model):
 
 
 def test_output_checks(tmp_path, small_model):
-    from hbake.pipeline import bake
+    from hbake.routes.pipeline import bake
 
     (tmp_path / "there.hbundle").mkdir()
     with pytest.raises(OutputExistsError):
@@ -787,7 +787,7 @@ def test_decompose_runs_alongside_and_reports(tmp_path, small_model, monkeypatch
     manifest after the bake's, in a fixed order, while it did run in another thread."""
     import threading
 
-    import hbake.pipeline as pipeline
+    import hbake.routes.pipeline as pipeline
     from hbake.errors import BakeFailedError
 
     real = pipeline.decompose
@@ -819,7 +819,7 @@ def test_decompose_runs_alongside_and_reports(tmp_path, small_model, monkeypatch
 def test_pipeline_bake_is_byte_deterministic(tmp_path, small_model):
     """Two bakes of the same input and settings give byte-identical bundles, and the
     manifest records the settings, seeds and libraries."""
-    from hbake.pipeline import bake
+    from hbake.routes.pipeline import bake
 
     s = BakeSettings().with_overrides(SMALL)
     r1 = bake(small_model, tmp_path / "a.hbundle", s)

@@ -315,7 +315,7 @@ def test_validate_and_check_count_the_same_cut_quads(models):
         print(f"{name}: {mine}")
         assert mine == theirs
         # The batching that bounds its memory changes nothing: tiny batches, same counts.
-        import hbake.surface_coverage as SC
+        import hbake.bundle.surface_coverage as SC
         from hbake.bundle import read_bundle
         saved = SC._CANDIDATES, SC._ROWS
         try:

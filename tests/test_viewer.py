@@ -1,4 +1,4 @@
-"""hbake view (hbake/viewer.py, docs/viewer.md) in headless Chromium, and the virtual device
+"""hbake view (hbake/viz/viewer.py, docs/viewer.md) in headless Chromium, and the virtual device
 it drives.
 
 - a bundle's page: the 3-D canvas is not blank (pixel statistics of a screenshot), the
@@ -101,7 +101,7 @@ def test_the_drawn_surface_is_closed_and_holds_the_full_meshs_volume(name):
     import trimesh
 
     from hbake.bundle import read_bundle
-    from hbake.viewer import surface_mesh
+    from hbake.viz.viewer import surface_mesh
 
     b = read_bundle(GOLDEN / f"{name}.hbundle")
     v, f = surface_mesh(b.coarse_faces, b.coarse_uvs, b.atlas)
@@ -119,7 +119,7 @@ def test_the_drawn_surface_is_closed_and_holds_the_full_meshs_volume(name):
 
 
 def test_bundle_page_draws_and_toggles(tmp_path):
-    from hbake.viewer import Viewer
+    from hbake.viz.viewer import Viewer
 
     v = Viewer(GOLDEN / "bumpy_blob.hbundle", port=0)
     driver = _browser()
@@ -146,7 +146,7 @@ def test_bundle_page_draws_and_toggles(tmp_path):
 
 
 def test_live_page_drag_into_contact_shows_the_runtime_wrench(tmp_path):
-    from hbake.viewer import Viewer
+    from hbake.viz.viewer import Viewer
 
     scene = tmp_path / "live.toml"
     scene.write_text(f"""
@@ -199,7 +199,7 @@ soft_start = 0.05
             fr = r.step()
         assert fr["frame"] == L["frame"] and np.array_equal(fr["contact"][:3], L["force"])
         # The sound of the last seconds, asked for in the page: a WAV of the session's
-        # vibration (its samples as hbake/sound.py makes them from the frames shown).
+        # vibration (its samples as hbake/viz/sound.py makes them from the frames shown).
         driver.execute_script("""
             Array.from(document.querySelectorAll('button'))
                 .find(b => b.textContent.trim() === 'sound of the last seconds').click();""")
@@ -221,8 +221,8 @@ soft_start = 0.05
 
 
 def test_replay_page_shows_the_trace_frame_and_its_sound(tmp_path):
-    from hbake.plot import Trace
-    from hbake.viewer import Viewer
+    from hbake.viz.plot import Trace
+    from hbake.viz.viewer import Viewer
 
     tr = Trace(DATA / "press.trace.csv")
     v = Viewer(DATA / "press.toml", DATA / "press.trace.csv", port=0)
@@ -292,8 +292,8 @@ def test_replay_plays_at_the_speed_asked():
     the frame shown is the trace's frame at that time (5 ms frames: 20 rows per second),
     whatever the display rate; the wall time is measured, the bound is two rows either way
     (the display's 33 ms ticks and the rows' 5 ms)."""
-    from hbake.plot import Trace
-    from hbake.viewer import Viewer
+    from hbake.viz.plot import Trace
+    from hbake.viz.viewer import Viewer
 
     tr = Trace(DATA / "press.trace.csv")
     v = Viewer(DATA / "press.toml", DATA / "press.trace.csv", port=0)

@@ -37,7 +37,7 @@ def wheel(tmp_path_factory) -> Path:
 
 def test_wheel_contents(wheel):
     names = zipfile.ZipFile(wheel).namelist()
-    for want in ("hbake/__init__.py", "hbake/cli.py", "hbake/schema/manifest.schema.json", "hrt/__init__.py",
+    for want in ("hbake/__init__.py", "hbake/cli/main.py", "hbake/schema/manifest.schema.json", "hrt/__init__.py",
                  "hrt/_hrt.pyi", "hrt/py.typed"):
         assert want in names, want
     assert any(n.startswith("hrt/_hrt.") and n.endswith(".so") for n in names)

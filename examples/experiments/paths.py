@@ -31,7 +31,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 MM = 1e-3
 
-# Ridged block (hbake/procedural.py): 50 x 60 x 20 mm, ridges along x, wavelength 5 mm,
+# Ridged block (hbake/lab/procedural.py): 50 x 60 x 20 mm, ridges along x, wavelength 5 mm,
 # amplitude 0.5 mm, mean top at 20 mm; its centre in its own frame:
 BLOCK_C = (25 * MM, 30 * MM, 10 * MM)
 L, A = 5 * MM, 0.5 * MM

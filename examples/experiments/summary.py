@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from hbake.plot import Trace
+from hbake.viz.plot import Trace
 
 tr = Trace(sys.argv[1])
 t = tr["t"]

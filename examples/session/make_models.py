@@ -7,7 +7,7 @@ from pathlib import Path
 
 import trimesh
 
-from hbake import procedural as P
+from hbake.lab import procedural as P
 
 out = Path(sys.argv[1])
 out.mkdir(parents=True, exist_ok=True)

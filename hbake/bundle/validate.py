@@ -30,10 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from . import constants as C
-from .errors import BakeFailedError, BundleError, OutputExistsError, OutputUnwritableError
-from .exrheader import ExrHeaderError, check_exr_header
-from .fileio import FileTooLargeError, read_regular
+from hbake import constants as C
+from hbake.errors import BakeFailedError, BundleError, OutputExistsError, OutputUnwritableError
+from hbake.bundle.exrheader import ExrHeaderError, check_exr_header
+from hbake.fileio import FileTooLargeError, read_regular
 
 __all__ = [
     "FORMAT_NAME", "FORMAT_VERSION", "FORMAT_MAJOR", "FILE_NAMES", "ERROR_CLASSES",
@@ -223,7 +223,7 @@ def load_schema() -> dict:
     global _SCHEMA_CACHE
     if _SCHEMA_CACHE is None:
         # Next to this module (package data, see pyproject.toml).
-        text = (Path(__file__).resolve().parent / "schema" / "manifest.schema.json").read_text("utf-8")
+        text = (Path(__file__).resolve().parents[1] / "schema" / "manifest.schema.json").read_text("utf-8")
         _SCHEMA_CACHE = json.loads(text)
     return _SCHEMA_CACHE
 

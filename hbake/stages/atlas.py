@@ -59,9 +59,9 @@ from scipy import ndimage
 
 from hbake import constants as C
 from hbake.errors import BakeFailedError
-from hbake.geometry import (ClosestPointQuery, closest_point_on_triangles, closest_points,
+from hbake.stages.geometry import (ClosestPointQuery, closest_point_on_triangles, closest_points,
                             face_normals, signed_distances, vertex_normals)
-from hbake.parameterize import barycentric_2d, chart_labels, texel_candidates, texel_coordinates
+from hbake.stages.parameterize import barycentric_2d, chart_labels, texel_candidates, texel_coordinates
 from hbake.settings import AtlasSettings, CageSettings
 
 
@@ -402,7 +402,7 @@ def midpoint_offsets(points, prim, edges, texel_size, closest, tris):
     length of either point, and within its distance of either point's hit triangle
     (``prim``, -1 where unknown; ``tris`` the full mesh's triangles); only edges whose
     bound is above the threshold are queried exactly (``closest``, a
-    hbake.geometry.ClosestPointQuery), a few in ten thousand on the shared models."""
+    hbake.stages.geometry.ClosestPointQuery), a few in ten thousand on the shared models."""
     thr = C.JUMP_REPAIR_TEXELS * texel_size
     p, q = points[edges[:, 0]], points[edges[:, 1]]
     length = np.linalg.norm(p - q, axis=1)

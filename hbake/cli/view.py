@@ -1,4 +1,4 @@
-"""``hbake view``: the command over hbake.viewer (docs/viewer.md)."""
+"""``hbake view``: the command over hbake.viz.viewer (docs/viewer.md)."""
 from __future__ import annotations
 
 import signal
@@ -40,7 +40,7 @@ def view_command(target, trace, play, host, port, duration, max_triangles, force
     Serves until Ctrl-C or SIGTERM (exit 0). Exit codes: 0 ok, 2 bad option, 3 input missing,
     4 input invalid.
     """
-    from hbake.viewer import Viewer
+    from hbake.viz.viewer import Viewer
 
     if trace is not None and target.suffix == ".hbundle":
         click.echo(f"hbake: error: {target}: --trace needs the scene file the trace was run from, not a bundle",

@@ -1,6 +1,6 @@
-"""`hbake batch` and `hbake report`: thin click commands over hbake.batch and hbake.report.
+"""`hbake batch` and `hbake report`: thin click commands over hbake.batch.jobs and hbake.viz.report.
 
-hbake/cli.py adds both to the `hbake` group. Errors are one line on stderr,
+hbake/cli/main.py adds both to the `hbake` group. Errors are one line on stderr,
 `hbake: error: <file>: <problem>`, with the exit codes of hbake.errors (and 18 when
 a batch ran but some models failed).
 """
@@ -88,8 +88,8 @@ def batch_command(inputs, out_dir, jobs, config, memory_budget, executor, schedu
     with its error class and the batch goes on. Exit codes: 0 all baked or skipped, 18 some
     model failed (see the report), 2 bad option, 3 input missing, 6 output not writable,
     8 bad config, 130 interrupted."""
-    from hbake.batch import available_memory, load_batch_config, plan, run_batch, write_report
-    from hbake.batch import DEFAULT_MEMORY_FRACTION
+    from hbake.batch.jobs import available_memory, load_batch_config, plan, run_batch, write_report
+    from hbake.batch.jobs import DEFAULT_MEMORY_FRACTION
 
     def log(msg: str) -> None:
         if not quiet:
@@ -117,11 +117,11 @@ def batch_command(inputs, out_dir, jobs, config, memory_budget, executor, schedu
             _fail(exc, as_json)
         n = jobs or os.cpu_count() or 1
         if executor == "dask":
-            from hbake.executors import DaskExecutor
+            from hbake.batch.executors import DaskExecutor
 
             ex = DaskExecutor(scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS"), n, retries, log)
         else:
-            from hbake.executors import LocalExecutor
+            from hbake.batch.executors import LocalExecutor
 
             budget = memory_budget or int(DEFAULT_MEMORY_FRACTION * available_memory())
             ex = LocalExecutor(n, budget, log)
@@ -191,7 +191,7 @@ def report_command(bundle, out_dir, source, samples, force, as_json):
     Exit codes: 0 ok, 2 --source is not the bundle's source, 3/4 --source missing or
     unreadable, 5 output exists (no --force), 6 output not writable, 10-16 the bundle is
     invalid (as for validate)."""
-    from hbake.report import write_report as write_html_report
+    from hbake.viz.report import write_report as write_html_report
 
     try:
         result = write_html_report(bundle, out_dir, source=source, samples=samples, force=force)

@@ -39,7 +39,7 @@ import numpy as np
 
 from hbake import constants as C
 from hbake.errors import BakeFailedError
-from hbake.geometry import face_areas
+from hbake.stages.geometry import face_areas
 from hbake.settings import ParameterizeSettings
 
 

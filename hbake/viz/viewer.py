@@ -17,7 +17,7 @@ Three modes, one page (docs/viewer.md):
 
 The page is viser's (its client is built into its wheel: no network, no build step),
 served on loopback by default. The contact force's vibration is also sound
-(hbake/sound.py): the page holds a player for the whole replay, or for the last seconds
+(hbake/viz/sound.py): the page holds a player for the whole replay, or for the last seconds
 of a live session.
 
 Display units are millimetres (the scene's metres x 1000); arrows are scaled by the
@@ -201,8 +201,8 @@ def load_object(name: str, bundle: Path, max_triangles: int = MAX_SURFACE_TRIANG
 
 
 def object_pose_at(obj: dict, t: float):
-    """Position and quaternion of a scene object (hbake.plot.scene_objects) at time t."""
-    from hbake.plot import trajectory_pose
+    """Position and quaternion of a scene object (hbake.viz.plot.scene_objects) at time t."""
+    from hbake.viz.plot import trajectory_pose
 
     if obj["trajectory"]:
         return trajectory_pose(obj["trajectory"], t)
@@ -247,7 +247,7 @@ class Viewer:
         else:
             if not target.exists():
                 raise InputMissingError(f"{target}: no such scene file or bundle")
-            from hbake.plot import scene_objects
+            from hbake.viz.plot import scene_objects
 
             self.objects, self.force_table = scene_objects(target)
             self.mode = "replay" if trace is not None else "live"
@@ -272,7 +272,7 @@ class Viewer:
                 raise InputInvalidError(str(exc)) from None
             self.virtual = not play
         if self.mode == "replay":
-            from hbake.plot import Trace
+            from hbake.viz.plot import Trace
             self.trace = Trace(trace)
             models = [hrt.load_bundle(str(o["bundle"]), verify_hashes=False) for o in self.objects]
             opts = {k: self.force_table[k] for k in ("resolution", "stiffness", "heights") if k in self.force_table}
@@ -414,7 +414,7 @@ class Viewer:
                 self.play_cb = gui.add_checkbox("play", initial_value=False)
                 self.speed = gui.add_slider("speed", min=0.05, max=4.0, step=0.05, initial_value=1.0)
             self._playing = False
-            from hbake import sound
+            from hbake.viz import sound
             sig = sound.trace_vibration(self.trace)
             self._audio_html(sound.wav_bytes(sig), f"the texture's vibration over the whole trace "
                                                    f"({self.trace['t'][-1] - self.trace['t'][0]:.2f} s)")
@@ -438,7 +438,7 @@ class Viewer:
             self.audio = self.server.gui.add_html(html)
 
     def _live_sound(self, autoplay: bool = False):
-        from hbake import sound
+        from hbake.viz import sound
         with self.lock:
             h = list(self.history)
         t = np.array([x[0] for x in h])

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import struct
 
-from . import constants as C
+from hbake import constants as C
 
 __all__ = ["ExrHeaderError", "check_exr_header", "MAX_HEADER_BYTES", "MAX_ATTRIBUTES",
            "MAX_CHANNELS"]

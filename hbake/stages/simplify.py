@@ -31,8 +31,8 @@ import numpy as np
 
 from hbake import constants as C
 from hbake.errors import BakeFailedError
-from hbake.geometry import face_components, is_closed, signed_volumes
-from hbake.load import degenerate_faces, repair_mesh
+from hbake.stages.geometry import face_components, is_closed, signed_volumes
+from hbake.stages.load import degenerate_faces, repair_mesh
 from hbake.settings import SimplifySettings
 
 
@@ -109,7 +109,7 @@ def simplify(vertices: np.ndarray, faces: np.ndarray, settings: SimplifySettings
 
 def _two_sided_mean(v_ref, f_ref, v, f) -> float:
     """Mean distance ref surface -> mesh plus mesh surface -> ref, on seeded samples."""
-    from hbake.geometry import closest_points, sample_surface
+    from hbake.stages.geometry import closest_points, sample_surface
 
     rng = np.random.default_rng(C.SCORE_SEED)
     a, _, _ = sample_surface(v_ref, f_ref, C.SCORE_SAMPLES, rng)
@@ -176,7 +176,7 @@ def cap_holes(vertices: np.ndarray, faces: np.ndarray):
     decomposition and the mass properties of open inputs, never stored in the bundle."""
     import pymeshlab
 
-    from hbake.geometry import boundary_edge_count
+    from hbake.stages.geometry import boundary_edge_count
 
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.ascontiguousarray(vertices, dtype=np.float64),

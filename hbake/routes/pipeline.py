@@ -13,7 +13,7 @@ Cage-bake route (``method = "cage"``), data flow per stage:
     write        everything                   -> OUT.hbundle (atomic, byte-deterministic)
 
 The parameterization-preserving route of the paper (Sec. 6.1, ``method = "pp"``, alias
-``preserve``) replaces simplify, parameterize and bake by hbake/preserve.py's stages
+``preserve``) replaces simplify, parameterize and bake by hbake/routes/preserve.py's stages
 (proxy, charts, transfer, simplify, bake; shown as "pp ..."); ``method = "auto"`` runs
 both and keeps one (``_preserve_or_auto``). The manifest's ``route`` (format 1.2) says
 which and why; decompose, mass, quality and write are shared.
@@ -31,20 +31,20 @@ from pathlib import Path
 import numpy as np
 
 from hbake import __version__
-from hbake.atlas import bake_atlas
+from hbake.stages.atlas import bake_atlas
 from hbake.bundle import BundleData, remove_stale_temporaries, write_bundle
-from hbake.decompose import decompose
+from hbake.stages.decompose import decompose
 from hbake import constants as C
 from hbake.errors import (EXIT_USAGE, HbakeError, OutputExistsError, OutputUnwritableError,
                           TargetUnreachableError)
-from hbake.geometry import face_areas, signed_volumes
-from hbake.load import load_mesh
-from hbake.mass import mass_properties
-from hbake.parameterize import parameterize
+from hbake.stages.geometry import face_areas, signed_volumes
+from hbake.stages.load import load_mesh
+from hbake.stages.mass import mass_properties
+from hbake.stages.parameterize import parameterize
 from hbake.progress import Progress
-from hbake.quality import measure
+from hbake.stages.quality import measure
 from hbake.settings import BakeSettings
-from hbake.simplify import cap_holes, simplify
+from hbake.stages.simplify import cap_holes, simplify
 
 #: Distributions whose versions decide the bundle's bytes (recorded in the manifest).
 LIBRARIES = ("numpy", "scipy", "trimesh", "pymeshlab", "fast-simplification", "xatlas",
@@ -204,9 +204,9 @@ def _cage_atlas(full, coarse, settings, progress, warn):
 
 def route_errors(full, coarse, param, baked, samples: int, seed: int) -> dict:
     """The two-way reconstruction error (p95, in the route's texel sizes) on which
-    ``method = "auto"`` chooses (hbake/quality.py's measures, on fewer samples)."""
-    from hbake.parameterize import chart_labels
-    from hbake.quality import coarse_to_full, full_to_coarse, reconstructed_mesh
+    ``method = "auto"`` chooses (hbake/stages/quality.py's measures, on fewer samples)."""
+    from hbake.stages.parameterize import chart_labels
+    from hbake.stages.quality import coarse_to_full, full_to_coarse, reconstructed_mesh
 
     rng_c, rng_f = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
     d_cf = coarse_to_full(coarse.vertices, coarse.faces, param.uvs, baked.image, full.vertices,
@@ -260,7 +260,7 @@ def _preserve_or_auto(input, full, settings, progress, warn):
     4.4 texels against the cage's 1.3 mm); else the cage bundle. A preserve candidate that
     fails for any reason is dropped with its one-line reason: auto never fails where the
     cage route succeeds. Returns (coarse, param, baked, manifest["route"])."""
-    from hbake.preserve import bake_preserve
+    from hbake.routes.preserve import bake_preserve
 
     name = Path(input).name
     target = settings.simplify.target_faces

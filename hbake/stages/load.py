@@ -16,7 +16,7 @@ unreadable file, an unsupported extension, an empty or unparsable file, NaN/Inf
 coordinates, and a mesh with nothing left after repair.
 
 Accepted with a warning (recorded in the manifest): an open mesh (mass properties
-then come from the coarse mesh or the convex hull, see ``hbake.mass``), several
+then come from the coarse mesh or the convex hull, see ``hbake.stages.mass``), several
 separate bodies in one file (baked together as one rigid object), an unknown unit.
 """
 from __future__ import annotations
@@ -34,7 +34,7 @@ import numpy as np
 from hbake import constants as C
 from hbake.errors import InputInvalidError, InputMissingError
 from hbake.fileio import FileTooLargeError, check_regular, read_regular
-from hbake.geometry import (bbox_diagonal, boundary_edge_count, face_components,
+from hbake.stages.geometry import (bbox_diagonal, boundary_edge_count, face_components,
                             is_closed, signed_volumes, unique_rows)
 from hbake.settings import LoadSettings
 

@@ -1,7 +1,7 @@
 """The commands of the lab: `hbake bench` (the bake benchmark), `hbake texture` (a relief on
 a mesh) and `hbake plot` (the paper's figures from a session trace). Each is a thin layer
-over its library module (hbake.bench, hbake.texture, hbake.plot): options in, one call,
-the result or one error line out. Registered by hbake/cli.py."""
+over its library module (hbake.lab.bench, hbake.lab.texture, hbake.viz.plot): options in, one call,
+the result or one error line out. Registered by hbake/cli/main.py."""
 from __future__ import annotations
 
 import math
@@ -10,10 +10,10 @@ from pathlib import Path
 
 import click
 
-from hbake.bench import BENCH_METHODS, MODELS_ENV, run_bench
+from hbake.lab.bench import BENCH_METHODS, MODELS_ENV, run_bench
 from hbake.errors import HbakeError
-from hbake.plot import DEFAULT_FIGURES, FIGURES, plot_trace
-from hbake.texture import (ALONG, DEFAULT_MAX_TRIANGLES, DEFAULT_NORMAL_SMOOTHING, DEFAULT_SAMPLES, MAPPINGS,
+from hbake.viz.plot import DEFAULT_FIGURES, FIGURES, plot_trace
+from hbake.lab.texture import (ALONG, DEFAULT_MAX_TRIANGLES, DEFAULT_NORMAL_SMOOTHING, DEFAULT_SAMPLES, MAPPINGS,
                            PATTERNS, PROFILES, Region, TextureSettings, texture_file)
 
 # ----------------------------------------------------------------------------
@@ -150,7 +150,7 @@ def _check_pattern(ctx, param, value):
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="Mesh file to write (.ply, .obj, .stl, .off), in the input's units.")
 @click.option("--pattern", required=True, metavar="ridges|grooves|knurl|bumps|noise|image:FILE",
-              callback=_check_pattern, help="The relief (see hbake/texture.py for each formula).")
+              callback=_check_pattern, help="The relief (see hbake/lab/texture.py for each formula).")
 @click.option("--amplitude", type=float, required=True,
               help="Half the peak-to-peak height of the relief (input units), > 0.")
 @click.option("--wavelength", type=float, required=True,

@@ -19,7 +19,7 @@ column). Figures, each a PNG written to ``--out`` (default: beside the trace, na
   ``--hrt``.
 
 ``--audio`` also writes ``<trace stem>.wav``: the contact force's high-frequency part as
-sound (hbake/sound.py).
+sound (hbake/viz/sound.py).
 
 Matplotlib's Agg backend renders off screen; the same trace gives the same picture.
 """
@@ -370,7 +370,7 @@ def scene_picture(tr: Trace, scene: Path, frame: int, path: Path, hrt: str | Non
 def plot_trace(trace: Path, figures=DEFAULT_FIGURES, out: Path | None = None, scene: Path | None = None,
                frame: int | None = None, axis=(0.0, 0.0, 1.0), hrt: str | None = None,
                audio: bool = False, audio_source: str = "contact", audio_cutoff: float | None = None) -> list[Path]:
-    """Write the figures of ``trace`` (and with ``audio`` its sound, hbake/sound.py);
+    """Write the figures of ``trace`` (and with ``audio`` its sound, hbake/viz/sound.py);
     returns their paths."""
     trace = Path(trace)
     tr = Trace(trace)
@@ -401,7 +401,7 @@ def plot_trace(trace: Path, figures=DEFAULT_FIGURES, out: Path | None = None, sc
             fr = frame if frame is not None else int(tr.frames()[len(tr) // 2])
             paths.append(scene_picture(tr, Path(scene), fr, path, hrt))
     if audio:
-        from hbake import sound
+        from hbake.viz import sound
         cutoff = sound.DEFAULT_CUTOFF if audio_cutoff is None else audio_cutoff
         sig = sound.trace_vibration(tr, sound.DEFAULT_RATE, cutoff, audio_source)
         paths.append(sound.write_wav(out / f"{stem}.wav", sig, sound.DEFAULT_RATE))

@@ -52,15 +52,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from hbake import constants as C
-from hbake.atlas import (BakedAtlas, RayCaster, assign_texels, fill_gutter, midpoint_offsets,
+from hbake.stages.atlas import (BakedAtlas, RayCaster, assign_texels, fill_gutter, midpoint_offsets,
                          texel_edges, texel_image)
 from hbake.errors import BakeFailedError, TargetUnreachableError
-from hbake.geometry import (ClosestPointQuery, closest_point_on_triangles, face_areas,
+from hbake.stages.geometry import (ClosestPointQuery, closest_point_on_triangles, face_areas,
                             is_closed, signed_distances)
-from hbake.load import degenerate_faces
-from hbake.parameterize import (Parameterization, barycentric_2d, chart_labels, parameterize,
+from hbake.stages.load import degenerate_faces
+from hbake.stages.parameterize import (Parameterization, barycentric_2d, chart_labels, parameterize,
                                 texel_coordinates)
-from hbake.simplify import CoarseMesh, simplify
+from hbake.stages.simplify import CoarseMesh, simplify
 
 __all__ = ["PreserveResult", "bake_preserve", "transfer_charts", "split_seams",
            "simplify_preserving", "rasterize_full", "uv_containment"]
@@ -345,7 +345,7 @@ def degenerate_footprints(uvs, tri_of, bary, dist, W: int, H: int) -> int:
     chart), never as covered (barycentrics -1), and every texel's distance becomes the
     nearer of the two, so fill_gutter widens the gutter over all of them. Returns the
     number of texels added."""
-    from hbake.atlas import _segment_distance_2d
+    from hbake.stages.atlas import _segment_distance_2d
 
     p = texel_coordinates(uvs, W, H)
     e = np.roll(p, -1, axis=1) - p
@@ -378,7 +378,7 @@ def rasterize_full(coarse_vertices, coarse_faces, coarse_uvs, coarse_chart, full
                    progress=None) -> BakedAtlas:
     """The atlas of the coarse mesh's UVs, every value a point of the full surface.
 
-    Which texels are baked, and their coverage, follow the cage route (hbake/atlas.py):
+    Which texels are baked, and their coverage, follow the cage route (hbake/stages/atlas.py):
     texels within BAKE_BORDER_TEXELS of a coarse UV triangle are baked (alpha 1 where
     the centre lies inside one), the rest within the gutter filled by the same dilation
     (``fill_gutter``). A baked texel's value is the full-surface point whose UV is the

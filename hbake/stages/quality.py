@@ -14,7 +14,7 @@
     the texel grid: every 2x2 block of baked texels of one chart gives two triangles
     through the four stored positions (the bilinear patch to second order).
 
-  Distances are exact closest-point distances (``hbake.geometry.closest_points``).
+  Distances are exact closest-point distances (``hbake.stages.geometry.closest_points``).
   Each is reported as mean, p95 and max in meters and relative to the full mesh's
   bounding-box diagonal.
 * ``displacement_outward``/``inward``: from the bake: the largest signed distance
@@ -37,8 +37,8 @@ from __future__ import annotations
 import numpy as np
 
 from hbake import constants as C
-from hbake.geometry import closest_points, sample_surface, winding_numbers
-from hbake.parameterize import chart_labels
+from hbake.stages.geometry import closest_points, sample_surface, winding_numbers
+from hbake.stages.parameterize import chart_labels
 
 
 def error_stats(d: np.ndarray, diag: float) -> dict:

@@ -133,7 +133,7 @@ def texel_heights(b) -> np.ndarray:
     """(H, W) displacement (f(q) - q) . n of each covered texel from the coarse surface
     (m), NaN elsewhere: q is the texel centre's point on its coarse triangle, n that
     triangle's unit normal (the height the depth computation uses, bundle-format.md)."""
-    from hbake.atlas import assign_texels
+    from hbake.stages.atlas import assign_texels
 
     h, w = b.atlas.shape[:2]
     tri, bary, dist = assign_texels(np.asarray(b.coarse_uvs, dtype=np.float64), w, h)
@@ -192,7 +192,7 @@ def reconstruction_errors(b, full_vertices, full_faces, samples: int, seed: int)
     """(face ids, distances m) of ``samples`` seeded area-uniform coarse-surface samples,
     mapped through the atlas (bilinear, as the runtime reads it) to the full surface."""
     from hbake.bundle import atlas_lookup
-    from hbake.geometry import closest_points, sample_surface
+    from hbake.stages.geometry import closest_points, sample_surface
 
     rng = np.random.default_rng(seed)
     _, face, bary = sample_surface(b.coarse_vertices, b.coarse_faces.astype(np.int64), samples, rng)
@@ -309,7 +309,7 @@ def write_report(bundle: str | os.PathLike, out_dir: str | os.PathLike, *,
         raise HbakeError(f"{bundle}: {exc.cls}: {exc}", exc.exit_code) from None
     full = None
     if source is not None:
-        from hbake.load import load_mesh
+        from hbake.stages.load import load_mesh
         from hbake.settings import BakeSettings
 
         settings = BakeSettings.from_dict(b.manifest["settings"], source=f"{bundle}/manifest.json")

@@ -1,6 +1,6 @@
 """`hbake validate` and `hbake inspect`: thin click commands over hbake.bundle.
 
-hbake/cli.py adds both to the `hbake` group. Output goes to stdout (it is the
+hbake/cli/main.py adds both to the `hbake` group. Output goes to stdout (it is the
 command's result); the exit code of `validate` is the one of the first
 problem's error class (docs/bundle-format.md, hbake.errors.VALIDATE_EXIT).
 """
@@ -11,9 +11,9 @@ import sys
 
 import click
 
-from .bundle import check_bundle, check_bundle_data
-from .surface_coverage import surface_coverage
-from .errors import VALIDATE_EXIT
+from hbake.bundle import check_bundle, check_bundle_data
+from hbake.bundle.surface_coverage import surface_coverage
+from hbake.errors import VALIDATE_EXIT
 
 __all__ = ["validate", "inspect"]
 

@@ -82,7 +82,7 @@ def _parse_atlas_size(ctx, param, value):
 
 @main.command("bake", context_settings=CONTEXT)
 # readable=False: click's own check would refuse an unreadable input with a usage error
-# (exit 2, three lines); hbake.load reports it as exit 3 in one line.
+# (exit 2, three lines); hbake.stages.load reports it as exit 3 in one line.
 @click.argument("input", type=click.Path(path_type=Path, dir_okay=True, readable=False))
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
               help="Bundle directory to write (name ending in .hbundle).")
@@ -155,7 +155,7 @@ def _bake_here(input, output, settings, report, force, quiet, as_json=False) -> 
 
     progress = None
     try:
-        from hbake.pipeline import bake
+        from hbake.routes.pipeline import bake
 
         progress = Progress(quiet=quiet)
         result = bake(input, output, settings, progress, force=force)
@@ -304,28 +304,28 @@ def print_summary(result: dict) -> None:
 
 
 # --- other commands --------------------------------------------------------------------
-from hbake.cli_bundle import inspect, validate  # noqa: E402
+from hbake.cli.bundle import inspect, validate  # noqa: E402
 
 main.add_command(validate)
 main.add_command(inspect)
 
-from hbake.cli_lab import bench_command  # noqa: E402
+from hbake.cli.lab import bench_command  # noqa: E402
 
 main.add_command(bench_command, "bench")
 
-from hbake.cli_lab import texture_command  # noqa: E402
+from hbake.cli.lab import texture_command  # noqa: E402
 
 main.add_command(texture_command, "texture")
 
-from hbake.cli_lab import plot_command  # noqa: E402
+from hbake.cli.lab import plot_command  # noqa: E402
 
 main.add_command(plot_command, "plot")
 
-from hbake.cli_view import view_command  # noqa: E402
+from hbake.cli.view import view_command  # noqa: E402
 
 main.add_command(view_command, "view")
 
-from hbake.cli_batch import batch_command, report_command  # noqa: E402
+from hbake.cli.batch import batch_command, report_command  # noqa: E402
 
 main.add_command(batch_command, "batch")
 main.add_command(report_command, "report")
@@ -338,7 +338,7 @@ def generate_command(name, path):
     """Write the procedural test model NAME to PATH (.ply, .stl, .obj, .off; meters).
 
     Models: ridged_block, ridged_gear, wrinkled_torus, grating, cad_part, rasp."""
-    from hbake.procedural import MODELS, generate
+    from hbake.lab.procedural import MODELS, generate
 
     if name not in MODELS:
         click.echo(f"hbake: error: unknown model {name!r} (known: {', '.join(MODELS)})", err=True)

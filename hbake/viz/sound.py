@@ -1,6 +1,6 @@
 """The texture as sound: the high-frequency part of a session's contact force, as audio.
 
-``hbake plot TRACE.csv --audio`` writes ``<trace stem>.wav``; the viewer (hbake/viewer.py)
+``hbake plot TRACE.csv --audio`` writes ``<trace stem>.wav``; the viewer (hbake/viz/viewer.py)
 plays the same signal in the page. The signal is what a hand would feel as vibration:
 
 1. the texture contact force on the probe (trace columns ``contact_fx, contact_fy,
@@ -79,7 +79,7 @@ def vibration(t: np.ndarray, force: np.ndarray, rate: int = DEFAULT_RATE,
 
 def trace_vibration(trace, rate: int = DEFAULT_RATE, cutoff: float = DEFAULT_CUTOFF,
                     source: str = "contact") -> np.ndarray:
-    """vibration() of a trace (hbake.plot.Trace): its ``source`` force against ``t``."""
+    """vibration() of a trace (hbake.viz.plot.Trace): its ``source`` force against ``t``."""
     if source not in SOURCES:
         raise ValueError(f"source must be one of {', '.join(SOURCES)}")
     t = trace["t"]

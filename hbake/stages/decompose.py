@@ -24,8 +24,8 @@ import numpy as np
 
 from hbake.bundle import MAX_PIECE_VERTICES
 from hbake.errors import BakeFailedError
-from hbake.geometry import is_closed
-from hbake.mass import convex_hull_mesh
+from hbake.stages.geometry import is_closed
+from hbake.stages.mass import convex_hull_mesh
 from hbake.settings import DecomposeSettings
 
 

@@ -548,8 +548,8 @@ def texture_mesh(vertices: np.ndarray, faces: np.ndarray, s: TextureSettings,
 
 
 def _load(path: Path):
-    """The input mesh in its own units (hbake.load's checks and repairs, no scaling)."""
-    from hbake.load import load_mesh
+    """The input mesh in its own units (hbake.stages.load's checks and repairs, no scaling)."""
+    from hbake.stages.load import load_mesh
     from hbake.settings import LoadSettings
 
     m = load_mesh(path, LoadSettings(units="m"))

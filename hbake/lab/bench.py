@@ -2,7 +2,7 @@
 
 Bakes the shared models (``../shared/models`` from the repository root; absent
 ones are skipped) and the generated ~650k-triangle CAD part
-(:func:`hbake.procedural.cad_part`), each bake in a fresh Python process so that
+(:func:`hbake.lab.procedural.cad_part`), each bake in a fresh Python process so that
 the peak resident set size is that bake's alone (``os.wait4`` returns the
 child's own ``ru_maxrss``; Linux carries a parent's peak RSS into a forked
 child, so the parent never loads a big mesh itself). Prints a Markdown table: triangles in and out,
@@ -65,7 +65,7 @@ BENCH_METHODS = ("cage", "preserve", "pp", "auto", "both")
 #: a row of its own in the table, not a failed bake.
 _EXIT_UNREACHABLE = 9
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 #: The environment variable naming the shared models' folder (README, "The first hour").
 MODELS_ENV = "HBAKE_MODELS"
 
@@ -184,7 +184,7 @@ def _bake_in_child(input_path: Path, output_path: Path, overrides: dict) -> tupl
     with tempfile.NamedTemporaryFile("r", suffix=".json", delete=False) as fh:
         result_path = fh.name
     try:
-        cmd = [sys.executable, "-m", "hbake.bench", "--child", str(input_path), str(output_path),
+        cmd = [sys.executable, "-m", "hbake.lab.bench", "--child", str(input_path), str(output_path),
                json.dumps(overrides, sort_keys=True), result_path]
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -240,7 +240,7 @@ def default_models(work_dir: Path, log=print, models_dir: Path | None = None,
         # so a parent that had grown by making the 650k part would inflate every
         # child's ru_maxrss.
         subprocess.run([sys.executable, "-c",
-                        "import sys; from hbake.procedural import generate; "
+                        "import sys; from hbake.lab.procedural import generate; "
                         "generate('cad_part', sys.argv[1])", str(cad)], check=True)
     models.append(("cad_part (generated)", cad, "m"))
     return models
@@ -395,11 +395,11 @@ def run_bench(models: Sequence[str | os.PathLike] | None = None,
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry of ``python -m hbake.bench`` (the child protocol, or the bench command)."""
+    """Entry of ``python -m hbake.lab.bench`` (the child protocol, or the bench command)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["--child"]:
         return _child(*argv[1:5])
-    from hbake.cli_lab import bench_command
+    from hbake.cli.lab import bench_command
 
     bench_command.main(args=argv, prog_name="hbake bench")
     return 0

@@ -1,7 +1,7 @@
 """Where the jobs of ``hbake batch`` run: this machine, or a Dask cluster.
 
-Both take the job dicts of hbake.batch and call ``finished(result)`` once per job, with
-the dict ``hbake.batch.run_job`` returns (plus ``attempts``); neither ever drops a job:
+Both take the job dicts of hbake.batch.jobs and call ``finished(result)`` once per job, with
+the dict ``hbake.batch.jobs.run_job`` returns (plus ``attempts``); neither ever drops a job:
 a job that could not run is reported as failed with its class.
 
 * ``LocalExecutor``: up to ``jobs`` bakes at once on this machine, admitted only while
@@ -21,7 +21,7 @@ import threading
 import uuid
 from typing import Callable
 
-from hbake.batch import MemoryModel, run_job, terminate_running
+from hbake.batch.jobs import MemoryModel, run_job, terminate_running
 from hbake.errors import EXIT_USAGE, HbakeError
 
 #: How long the client tries to reach a --scheduler before the batch fails (exit 2).

@@ -15,7 +15,7 @@ the manifest names. Anything else is re-baked, and the report says why.
 Each bake is the ``hbake bake`` command in a child process (``run_job``): the native
 libraries, a crash or an out-of-memory kill stay inside it, its exit code is the error
 class of the exit-code table (docs/guides/baking.md), and its peak RSS (wait4) is measured. The same function
-runs on a Dask worker (hbake/executors.py), so both executors share the caching, the
+runs on a Dask worker (hbake/batch/executors.py), so both executors share the caching, the
 report and the error classes.
 """
 from __future__ import annotations
@@ -282,7 +282,7 @@ class Job:
 
 def plan(inputs: list[Path], out_dir: Path, cfg: BatchConfig, *, rebuild: bool = False) -> list[Job]:
     """The jobs of a batch, each marked skip or not (with the reason)."""
-    from hbake.pipeline import library_versions
+    from hbake.routes.pipeline import library_versions
 
     files = discover(inputs)
     outputs: dict[str, Path] = {}
@@ -453,7 +453,7 @@ def skipped_result(job: Job) -> dict:
 
 
 def run_batch(jobs: list[Job], executor, *, log: Callable[[str], None] = lambda s: None) -> dict:
-    """Run the jobs that are not up to date on ``executor`` (hbake.executors) and return
+    """Run the jobs that are not up to date on ``executor`` (hbake.batch.executors) and return
     the report (docs/guides/pipelines.md, "hbake batch"). Progress lines go to ``log``."""
     t0 = time.perf_counter()
     todo = [j for j in jobs if not j.skip]
