@@ -26,9 +26,8 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from hbake.bundle import (  # noqa: E402
-    _COARSE_FACE, _PIECE_FACE, _PIECE_VERTEX, _XYZ, manifest_bytes, read_atlas_exr, write_atlas_exr,
-)
+from hbake.bundle import manifest_bytes, read_atlas_exr, write_atlas_exr  # noqa: E402
+from hbake.bundle.format import _COARSE_FACE, _PIECE_FACE, _PIECE_VERTEX, _XYZ  # noqa: E402
 
 INDEX_NAME = "index.json"
 

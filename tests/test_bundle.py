@@ -22,6 +22,7 @@ from click.testing import CliRunner
 
 import corrupt
 from hbake import bundle as hb
+from hbake.bundle import format as hb_format, uv_coverage, write as hb_write
 from hbake.bundle import (
     BundleData, atlas_lookup, read_bundle, texel_coords, validate_bundle, write_bundle,
 )
@@ -335,7 +336,7 @@ def test_write_is_atomic(tmp_path, monkeypatch, exc, cube):
     def boom(*a, **k):
         raise exc("stop")
 
-    monkeypatch.setattr(hb._impl, "write_pieces_ply", boom)
+    monkeypatch.setattr(hb_write, "write_pieces_ply", boom)
     with pytest.raises(exc):
         write_bundle(tmp_path / "new.hbundle", cube_data())
     with pytest.raises(exc):
@@ -409,7 +410,7 @@ def test_footprint_is_exactly_the_texels_bilinear_reads():
     w, h = 20, 13
     for _ in range(30):
         tri = rng.uniform(0, 1, size=(3, 2))
-        fi, fj = hb._footprint_texels(tri, w, h)
+        fi, fj = uv_coverage._footprint_texels(tri, w, h)
         got = set(zip(fi.tolist(), fj.tolist()))
         b = rng.dirichlet([1, 1, 1], size=20000)
         b = np.concatenate([b, np.eye(3), [[0.5, 0.5, 0], [0, 0.5, 0.5], [0.5, 0, 0.5]]])
@@ -536,8 +537,8 @@ def _coarse_records(path: Path):
     off = blob.index(b"end_header\n") + 11
     n = int(re.search(rb"element vertex (\d+)", blob).group(1))
     m = int(re.search(rb"element face (\d+)", blob).group(1))
-    verts = np.frombuffer(blob, hb._XYZ, n, off).copy()
-    faces = np.frombuffer(blob, hb._COARSE_FACE, m, off + 12 * n).copy()
+    verts = np.frombuffer(blob, hb_format._XYZ, n, off).copy()
+    faces = np.frombuffer(blob, hb_format._COARSE_FACE, m, off + 12 * n).copy()
     return blob, off, verts, faces
 
 
@@ -582,8 +583,8 @@ def _pieces_records(path: Path):
     off = blob.index(b"end_header\n") + 11
     n = int(re.search(rb"element vertex (\d+)", blob).group(1))
     m = int(re.search(rb"element face (\d+)", blob).group(1))
-    verts = np.frombuffer(blob, hb._PIECE_VERTEX, n, off).copy()
-    faces = np.frombuffer(blob, hb._PIECE_FACE, m, off + verts.nbytes).copy()
+    verts = np.frombuffer(blob, hb_format._PIECE_VERTEX, n, off).copy()
+    faces = np.frombuffer(blob, hb_format._PIECE_FACE, m, off + verts.nbytes).copy()
     return blob, off, verts, faces
 
 

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from hbake import bundle as hb
+from hbake.bundle import uv_coverage
 from hbake.errors import (EXIT_BAKE_FAILED, EXIT_CONFIG, EXIT_INPUT_INVALID, EXIT_INPUT_MISSING,
                           EXIT_INTERRUPTED, EXIT_USAGE, VALIDATE_EXIT)
 
@@ -662,7 +663,7 @@ def test_footprint_spans_equal_the_bounding_box_scan(w, h):
              np.concatenate([a, b, a + rng.normal(0, 1e-4, (n, 1, 2))], 1),
              np.concatenate([a, b, (a + b) / 2], 1), rng.uniform(-0.5, 1.5, (n, 3, 2))]
     uv = np.concatenate(kinds).astype(np.float32)
-    fp = hb._Footprints(uv, w, h)
+    fp = uv_coverage._Footprints(uv, w, h)
     got = [np.concatenate(x) for x in zip(*fp.visit())]
     for t in range(len(uv)):
         want = _footprint_bbox_scan(uv[t].astype(np.float64), w, h)
@@ -681,7 +682,7 @@ def _with_coverage_of_the_uvs(bundle: Path) -> Path:
     _, _, uv = hb.read_coarse_ply(bundle / "coarse.ply")
     h, w = atlas.shape[:2]
     # with A = 1 everywhere no texel stops the check early: `near` is complete
-    near = hb._coverage_check(uv.reshape(-1, 3, 2), w, h, np.ones((h, w), np.float32), 1 << 62)[2]
+    near = uv_coverage._coverage_check(uv.reshape(-1, 3, 2), w, h, np.ones((h, w), np.float32), 1 << 62)[2]
     atlas[:, :, 3] = near
     hb.write_atlas_exr(bundle / "atlas.exr", atlas, compression=m["files"]["atlas"]["compression"])
     _rehash(bundle, m)

@@ -540,7 +540,7 @@ def test_gutter_widens_for_sliver_tips():
     """A UV sliver whose tip runs many texels past the last covered texel: every texel a
     lookup inside it can read must lie within the (effective) gutter."""
     from hbake.stages.atlas import bake_atlas
-    from hbake.bundle import _footprint_texels
+    from hbake.bundle.uv_coverage import _footprint_texels
     from hbake.settings import AtlasSettings
 
     W = H = 64
@@ -699,7 +699,7 @@ def test_lookups_stay_in_their_chart(stages):
     """Every texel a bilinear lookup inside a UV triangle reads was baked from a triangle
     of the same chart (no lookup crosses a seam)."""
     s, (m, c, p, a, d), _ = stages
-    from hbake.bundle import _footprint_texels
+    from hbake.bundle.uv_coverage import _footprint_texels
     from hbake.stages.parameterize import chart_labels
 
     charts = chart_labels(c.faces, p.uvs)
