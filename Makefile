@@ -56,6 +56,7 @@ test: setup lint test-cpp test-py test-fuzz
 CXX_SOURCES = git ls-files '*.cpp' '*.h' '*.c'
 lint:
 	$(VENV)/bin/ruff check hbake tests tools examples
+	$(PY) tools/check_file_length.py
 	$(CXX_SOURCES) | xargs $(VENV)/bin/clang-format --dry-run -Werror
 
 format:

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GL depth backend against the CPU backend (issue 10's benchmark) on the
+# The GL depth backend against the CPU backend on the
 # scraping scene of examples/bench_runtime.sh (the rasp on the CAD part, as
 # in the paper's Fig. 9), with K copies of the part along the path so that
 # the number of patches per frame grows: per backend, the median frame time

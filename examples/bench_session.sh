@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Benchmark of the haptic session (issue 9): `hrt run --realtime` on the worked scene
+# Benchmark of the haptic session: `hrt run --realtime` on the worked scene
 # (examples/session: a 4 mm ball tip drawn over the baked grating, one contact patch at
 # N = 50, the corrected heights, friction on), REPEATS runs of DURATION s each, with and
 # without SCHED_FIFO for the device thread. Prints the machine, its load, and per mode the

@@ -10,7 +10,7 @@
 #
 # Environment: HBAKE, HRT (default .venv/bin/hbake, .venv/bin/hrt), SAMPLES
 # (quality samples per bake, default 2000: the sweep needs pieces, not figures).
-# The issue 7 run (52 bundles) took about 25 minutes on the 2-core dev machine.
+# A run of 52 bundles takes about 25 minutes on a 2-core machine.
 set -uo pipefail
 
 cd "$(dirname "$0")/.."

@@ -61,7 +61,7 @@ DEFAULT_QUALITY_THRESHOLD = 0.5
 #: for the two placements) finishes the job. The pre-pass costs accuracy on relief-covered
 #: blocks (the ridged block at 16 faces: two-sided mean distance 0.46 mm without it,
 #: 2.3 mm with it), so smaller inputs skip it; at 100k faces the two collapses take about
-#: 8 s of the 30 s budget of issue 2.
+#: 8 s of the bake's 30 s budget.
 DEFAULT_PRE_DECIMATE_ABOVE = 100_000
 DEFAULT_PRE_DECIMATE_FACES = 40_000
 #: The collapses are scale-dependent too: on a sphere of 1280 triangles cut to 300,
@@ -205,7 +205,7 @@ DEFAULT_COMPRESSION = "zip"
 #: search is narrowed from CoACD's 20 nodes x 150 iterations to 10 x 50: on the 600-face
 #: coarse meshes of rocker_arm.obj and fandisk.obj this cuts CoACD's CPU time from 19.6 s
 #: to 9.0 s and from 24.7 s to 15.8 s for 37 instead of 34 and 33 instead of 30 pieces
-#: (CoACD dominates the bake time of CAD parts; issue 2 budgets 30 s for 650k triangles).
+#: (CoACD dominates the bake time of CAD parts; the bake's budget is 30 s for 650k triangles).
 DEFAULT_COACD_THRESHOLD = 0.05
 DEFAULT_COACD_PREPROCESS_RESOLUTION = 50
 DEFAULT_COACD_RESOLUTION = 2000
@@ -227,7 +227,7 @@ CONVEX_TOLERANCE_REL = 1e-6
 CONVEX_TOLERANCE_ABS = 1e-9
 
 # --- quality -------------------------------------------------------------------------------
-#: Samples per direction of the reconstruction error (issue 2: at least 100k).
+#: Samples per direction of the reconstruction error (at least 100k).
 DEFAULT_QUALITY_SAMPLES = 100_000
 MIN_QUALITY_SAMPLES = 1_000
 #: Sec. 7.2: the atlas represents relief down to a wavelength of two texels.
@@ -273,7 +273,7 @@ PRESERVE_NEAREST_FACES = 16
 #: --method auto takes the preserve route when it reaches the target and both
 #: reconstruction errors (p95) are within this many of its texel sizes: the texture's own
 #: resolution (half a texel is the relief warning's level, one texel the off-surface bound
-#: of issue 11's tests).
+#: of the preserve route's tests).
 DEFAULT_AUTO_MAX_ERROR_TEXELS = 1.0
 #: Reruns of meshoptimizer with the vertices of pinched edges locked (one sufficed on
 #: every model measured; more only costs time).

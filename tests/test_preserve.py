@@ -393,7 +393,7 @@ def test_auto_weighs_the_worst_error_too():
     its p95 nor its worst error is more than a cage texel above the cage bundle's: the
     rocker arm's preserve bundle (p95 within the bound, worst 6.8 mm = 4.4 of its texels)
     against the cage's 1.3 mm worst is refused, naming the worst error."""
-    from hbake.routes.pipeline import choose_route
+    from hbake.routes.auto import choose_route
 
     cage = {"texel_size": 1.2e-3, "p95_m": 0.4e-3, "max_m": 1.3e-3}
     pp = {"triangles": 600, "coarse_to_full_p95_texels": 0.3, "full_to_coarse_p95_texels": 0.4,

@@ -787,17 +787,18 @@ def test_decompose_runs_alongside_and_reports(tmp_path, small_model, monkeypatch
     manifest after the bake's, in a fixed order, while it did run in another thread."""
     import threading
 
+    import hbake.routes.cage as cage
     import hbake.routes.pipeline as pipeline
     from hbake.errors import BakeFailedError
 
-    real = pipeline.decompose
+    real = cage.decompose
     seen = {}
 
     def failing(*args, **kwargs):
         seen["thread"] = threading.current_thread().name
         raise BakeFailedError("convex decomposition (CoACD) failed: test")
 
-    monkeypatch.setattr(pipeline, "decompose", failing)
+    monkeypatch.setattr(cage, "decompose", failing)
     out = tmp_path / "x.hbundle"
     with pytest.raises(BakeFailedError, match="CoACD"):
         pipeline.bake(small_model, out)
@@ -809,7 +810,7 @@ def test_decompose_runs_alongside_and_reports(tmp_path, small_model, monkeypatch
         pieces.warnings.extend(["decompose warning 1", "decompose warning 2"])
         return pieces
 
-    monkeypatch.setattr(pipeline, "decompose", warning)
+    monkeypatch.setattr(cage, "decompose", warning)
     report = pipeline.bake(small_model, out)
     w = report["manifest"]["warnings"]
     assert w.index("decompose warning 1") + 1 == w.index("decompose warning 2")

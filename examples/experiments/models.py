@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The benchmark models of Table 1 (issue 12, item 2), made and baked into OUT.
+"""The benchmark models of Table 1, made and baked into OUT.
 
     .venv/bin/python examples/experiments/models.py OUT [NAME ...] [--force]
 

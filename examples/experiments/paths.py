@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Write the scripted device trajectories of the four experiments (issue 12, item 3)
+"""Write the scripted device trajectories of the four experiments
 beside this file (docs/trajectory-format.md); the scenes examples/experiments/*.toml
 play them. The same code writes the same bytes (run it after changing a path; the CSVs
 are committed so that a scene can be read with its path).

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Table 1 of the paper beside ours (issue 12, item 2): make and bake the benchmark
+"""Table 1 of the paper beside ours: make and bake the benchmark
 models (examples/experiments/models.py) into OUT and print their complexity.
 
     .venv/bin/python examples/experiments/table.py OUT [--force] [--markdown FILE]

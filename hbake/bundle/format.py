@@ -150,9 +150,6 @@ class _Fail(Exception):
     """Internal: stop checking the current file (the problem is already recorded)."""
 
 
-_SCHEMA_CACHE: dict | None = None
-
-
 def _atlas_size_ok(w: int, h: int) -> bool:
     """The shared atlas limit (docs/input-contract.md)."""
     return (1 <= w <= C.MAX_ATLAS_SIDE and 1 <= h <= C.MAX_ATLAS_SIDE

@@ -11,7 +11,6 @@ import numpy as np
 
 from hbake.bundle.format import (
     _INT64_MAX,
-    _SCHEMA_CACHE,
     _SHA256,
     FILE_NAMES,
     MAX_GUTTER,
@@ -49,11 +48,14 @@ def manifest_bytes(manifest: dict) -> bytes:
     return (text + "\n").encode("utf-8")
 
 
+_SCHEMA_CACHE: dict | None = None
+
+
 def load_schema() -> dict:
     """The manifest's JSON Schema (draft 2020-12), shipped in ``hbake/schema``."""
     global _SCHEMA_CACHE
     if _SCHEMA_CACHE is None:
-        # Next to this module (package data, see pyproject.toml).
+        # hbake/schema, package data (see pyproject.toml).
         text = (Path(__file__).resolve().parents[1] / "schema" / "manifest.schema.json").read_text("utf-8")
         _SCHEMA_CACHE = json.loads(text)
     return _SCHEMA_CACHE

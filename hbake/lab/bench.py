@@ -1,4 +1,4 @@
-"""Bake benchmark (issue 2, "Benchmark"): ``hbake bench`` / ``examples/bench_bake.py``.
+"""Bake benchmark: ``hbake bench`` / ``examples/bench_bake.py``.
 
 Bakes the shared models (``../shared/models`` from the repository root; absent
 ones are skipped) and the generated ~650k-triangle CAD part
@@ -53,10 +53,10 @@ SHARED_OVERRIDES: dict[str, dict] = {
     "planetary_gears.stl": {"simplify.target_faces": 1200, "decompose.threshold": 0.1},
 }
 
-#: Targets of issue 2 for the 650k-triangle part on a 2-core machine.
+#: Targets for the 650k-triangle part on a 2-core machine.
 TARGET_SECONDS = 30.0
 TARGET_RSS_BYTES = 4 * 1024 ** 3
-#: Issue 11's target for the preserve route on the same part and machine.
+#: The target for the preserve route on the same part and machine.
 TARGET_SECONDS_PRESERVE = 300.0
 
 #: ``--method`` of the benchmark: one route, or ``both`` (cage and preserve, side by side).

@@ -1,4 +1,4 @@
-"""Procedural test models (issue 2, item 7): the paper's benchmark shapes, made by code.
+"""Procedural test models: the paper's benchmark shapes, made by code.
 
 Every generator is deterministic (pure numpy, or manifold3d booleans, no random
 numbers), returns a closed, edge-manifold :class:`trimesh.Trimesh` in **meters**

@@ -1,4 +1,4 @@
-"""Haptic texture synthesis (issue 12, item 1): give a smooth mesh a surface relief.
+"""Haptic texture synthesis: give a smooth mesh a surface relief.
 
 ``hbake texture INPUT -o OUTPUT --pattern P --amplitude A --wavelength L`` refines the
 mesh where the relief goes (MeshLab's conforming midpoint refinement of the edges longer

@@ -36,7 +36,7 @@ along the seam, on both sides at once) and takes a per-vertex lock mask, which i
 full surface's own UV of that point, and with the borders locked every coarse UV
 triangle lies inside its chart (the chart's outline is kept vertex for vertex). The
 pymeshlab texture-aware collapse lets seams drift (0.3-0.5 of the bbox diagonal
-measured in issue 11) and has no lock mask.
+measured when the route was built) and has no lock mask.
 
 A route that cannot reach the triangle target (every chart keeps its whole locked
 outline, so its border vertices bound the count from below) raises

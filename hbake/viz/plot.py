@@ -1,4 +1,4 @@
-"""Figures of a haptic session from its trace (issue 12, item 4): ``hbake plot TRACE.csv``.
+"""Figures of a haptic session from its trace: ``hbake plot TRACE.csv``.
 
 Works on any trace that follows docs/trace-format.md (the columns are found by name;
 a figure that needs a column the file lacks is an error naming the file and the
