@@ -1,6 +1,6 @@
 """The runtime guide's figure (docs/guides/runtime.md): the runtime's depth error against the full meshes.
 
-Bakes the scenes of tests/test_fullsurface_depth.py (angled gratings pressed together at
+Bakes the scenes of tests/integration/test_fullsurface_depth.py (angled gratings pressed together at
 six offsets, a bumpy sphere on a textured plate, three ../shared/models -- rocker arm,
 fandisk, Stanford bunny -- on a textured plate and a plain box), runs `hrt query --json` at
 N = 50 and 128 and prints, per group and over all scenes, the patches compared, the
@@ -12,7 +12,7 @@ larger texel of the pair), with the worst bound; the last line is the runtime gu
 
 FULLSURFACE_CACHE=DIR keeps the bakes across runs; FULLSURFACE_HBAKE_SRC=DIR bakes with
 another hbake checkout (see tests/fullsurface.py). `.venv/bin/python -m pytest -s
-tests/test_fullsurface_depth.py` prints the same figure (test_readme_figure).
+tests/integration/test_fullsurface_depth.py` prints the same figure (test_readme_figure).
 """
 from __future__ import annotations
 

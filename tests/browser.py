@@ -1,4 +1,4 @@
-"""Headless Chromium for the page tests (tests/test_report.py, tests/test_viewer.py), through
+"""Headless Chromium for the page tests (tests/hbake/viz/test_report.py, tests/integration/test_viewer.py), through
 selenium with the Debian chromium-driver's path given, so nothing is downloaded."""
 from __future__ import annotations
 

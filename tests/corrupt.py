@@ -1,6 +1,6 @@
 """Corrupted variants of a valid bundle, each breaking one rule of docs/bundle-format.md.
 
-Both `hbake validate` (tests/test_bundle.py) and the C++ loader (runtime tests,
+Both `hbake validate` (tests/hbake/bundle/test_bundle.py) and the C++ loader (runtime tests,
 reading the committed copies in tests/golden/corrupt/) must reject every
 variant with the error class listed here. Variants marked ``rehash`` have their
 manifest's SHA-256 and byte count recomputed, so that the hash check cannot be

@@ -877,7 +877,7 @@ def group_runs(hrt: str, models: dict, group: str, verbose: bool = True) -> list
 
 
 README_COMMAND = (".venv/bin/python examples/depth_error_report.py "
-                  "(or .venv/bin/python -m pytest -s tests/test_fullsurface_depth.py)")
+                  "(or .venv/bin/python -m pytest -s tests/integration/test_fullsurface_depth.py)")
 
 
 def readme_figure(runs: list[SceneRun]) -> str:

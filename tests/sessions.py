@@ -12,7 +12,7 @@ Models (meters):
   multiple of 45), wavelength STRIP_L = 4 mm (4.35 mm along x), amplitude 0.1 mm,
   96 x 10 mm, 0.125 mm cells (32 per wavelength);
 * ``fine_strip``: the same grating at FINE_L = 0.8 mm (0.1 mm cells, 8 per wavelength),
-  amplitude 0.05 mm, 66 x 8 mm, for the sound of a slide (tests/test_sound.py);
+  amplitude 0.05 mm, 66 x 8 mm, for the sound of a slide (tests/integration/test_sound.py);
 * ``tip``: a smooth sphere of radius 4 mm (its coarse mesh is curved), the ball tip
   that slides over the strip;
 * ``block``: an untextured 12 x 8 x 4 mm block and ``slab``, an untextured

@@ -7,7 +7,7 @@ lines) must be declared by an HTML comment on the line just above its fence:
     <!-- check-output: fast -->     seconds; re-run with --fast too
     <!-- check-output: slow -->     minutes (bakes, sessions); re-run without --fast
 
-The test suite (tests/test_doc_outputs.py, in `make test`) re-runs both.
+The test suite (tests/docs/test_doc_outputs.py, in `make test`) re-runs both.
 
 A quoted output without one of these is an error: quote only what is re-run here. Blocks
 that list commands without output need no marker.

@@ -44,7 +44,7 @@ SHARED_MODELS: dict[str, str] = {
 }
 
 #: Settings of a shared model where the defaults do not suit it (also used by
-#: tests/test_bake_models.py). planetary_gears.stl is an assembly of 7 gears baked as
+#: tests/hbake/stages/test_bake_models.py). planetary_gears.stl is an assembly of 7 gears baked as
 #: one object: at the default 600 coarse faces the coarse gears cannot follow the teeth
 #: (full->coarse p95 0.73 texel) and CoACD at threshold 0.05 takes 117 s (305 pieces);
 #: at 1200 faces and threshold 0.1: p95 0.14 texel, 51 pieces, 25 s in all (measured

@@ -95,7 +95,7 @@ def closest_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray):
     Uses MeshLab's vertex attribute transfer (a uniform-grid search in C++, about 0.5 s
     for 100k points on 650k triangles), with a search bound beyond any possible
     distance so every point is transferred. Agrees with the brute-force
-    ``closest_point_on_triangles`` to round-off (tests/test_stages.py).
+    ``closest_point_on_triangles`` to round-off (tests/hbake/stages/test_stages.py).
     """
     import pymeshlab
 
