@@ -1,4 +1,4 @@
-"""Full-surface depth harness (issue 8, "Tests that must exist": the bound and the brute force).
+"""Full-surface depth harness.
 
 The real chain: meshes (procedural, or ../shared/models decimated and scaled) are baked
 with ``hbake.routes.pipeline.bake``; ``hrt query --json`` runs at given poses and
@@ -71,9 +71,9 @@ LATERAL_TOLERANCE = 0.05
 #: float32 heights of ~0.05 m carry ~4e-9 m of rounding; the runtime interpolates in
 #: float32: 1e-7 m (0.001-0.003 texel here) covers it, as in test_bruteforce_depth.
 ABS_TOL = 1e-7
-#: Issue 8: on smooth relief (the gratings, the sphere) the bound is at most 0.25 texel.
+#: On smooth relief (the gratings, the sphere) the bound is at most 0.25 texel.
 SMOOTH_BOUND_TEXELS = 0.25
-#: Issue 8: at most 10 % of the patches may be left out by the keep rule.
+#: At most 10 % of the patches may be left out by the keep rule.
 MAX_LEFT_OUT = 0.10
 #: Columns that matter: those whose full surfaces are within NEAR of the deepest
 #: column's overlap (h_A - h_B >= delta_truth - NEAR); layers are counted within NEAR
@@ -132,7 +132,7 @@ MODEL_FACES = 30_000                 # decimated to at most this many triangles
 #: (thin fins, creases), the Stanford bunny (a scan: ears). The armadillo and the hammer
 #: scan were dropped: their folds (ears, fingers; the scan's handle) cross a column twice,
 #: so 22 % (armadillo) and 6 of 24 (hammer, at N = 128) of their patches were left out by
-#: the keep rule, which issue 8 allows for at most 10 % of a group.
+#: the keep rule, which is allowed for at most 10 % of a group.
 SHARED = ("rocker_arm.obj", "fandisk.obj", "stanford_bunny.obj")
 
 
@@ -786,7 +786,7 @@ def safety_members_missing(runs) -> list[str]:
 
 
 def safety_failures(runs) -> list[str]:
-    """Issue 8's patch safety on every patch (needs the members; see safety_members_missing):
+    """Patch safety on every patch (needs the members; see safety_members_missing):
     a refused patch gives no force or torque and ``delta_force`` 0; one not refused has
     ``delta_force = min(delta, delta_bound)`` (``delta`` is the raw depth of Eq. 9; 0 when
     uncovered or apart) and is ``clamped`` exactly when ``delta > delta_bound``; a wrong-way

@@ -1,4 +1,4 @@
-"""Haptic-session harness (issue 9, "Tests that must exist"): the real chain.
+"""Haptic-session harness: the real chain.
 
 Meshes are baked with ``hbake bake`` (tests/fullsurface.py's cached bake), scene files
 (docs/scene-format.md) and device trajectories (docs/trajectory-format.md) are written

@@ -1,5 +1,5 @@
 """`--backend cpu|gl|auto` of `hrt query`, `hrt bench`, `hrt run` and the scene file's
-`[run] backend` (issue 10, item 4): the choices, their errors and the fallbacks.
+`[run] backend`: the choices, their errors and the fallbacks.
 
 Every case runs the `hrt` binary (tests/hrt_locate.py) on the golden bundles of
 tests/golden: the pebble (26 mm, the probe A) resting on the bumpy blob (B). The pebble's

@@ -23,7 +23,7 @@ The depth of the default heights (``--heights surface``, the reconstructed
 full surface on each texel column) against rays cast on the full-resolution
 meshes is tests/integration/test_fullsurface_depth.py, with a bound fixed in advance. This
 file used to compare the coarse mode with the full meshes too, with a bound
-that added the parallax it measured, which could not fail (issue 8): removed.
+that added the parallax it measured, which could not fail: removed.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 8: continuity of delta along slow paths, and Fig. 7 on baked bundles.
+"""Continuity of delta along slow paths, and Fig. 7 on baked bundles.
 
 The bundles are those of tests/integration/test_fullsurface_depth.py (fullsurface.py bakes them
 once per process; FULLSURFACE_CACHE=DIR keeps them across runs). A path of A relative
@@ -28,9 +28,9 @@ import pytest
 import fullsurface as FS
 
 
-#: Step of a path, in A's atlas texels (issue 8).
+#: Step of a path, in A's atlas texels.
 STEP_TEXELS = 1e-3
-#: The slack of the continuity bound (issue 8): float32 heights of ~5 cm carry ~4e-9 m
+#: The slack of the continuity bound: float32 heights of ~5 cm carry ~4e-9 m
 #: of rounding, and the runtime's n drifts with the pose (below).
 CONT_ABS = 1e-7
 #: (name, scene, direction in the contact plane, steps). The direction is given in the
@@ -289,7 +289,7 @@ def fig7_ratio(frames, key):
 
 
 def test_fig7_no_force_along_the_ridges(hrt, models):
-    """Fig. 7 on the baked gratings: RMS of F . t <= 5 % of RMS of F . n (issue 8), both
+    """Fig. 7 on the baked gratings: RMS of F . t <= 5 % of RMS of F . n, both
     for F the texture force between the ridged faces (the face patch) and for F the net
     force on A (every patch: what the hand feels, rim and wrong-way patches included).
     Also printed: F summed over the patches whose n is the right way (the full meshes

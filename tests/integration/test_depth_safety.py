@@ -1,4 +1,4 @@
-"""Issue 8, cause 6 (patch safety) on the scenes of the full-surface depth tests.
+"""Patch safety on the scenes of the full-surface depth tests.
 
 The runs are those of tests/integration/test_fullsurface_depth.py (fullsurface.group_runs: the
 gratings pressed together at six offsets, a bumpy sphere on a textured plate, three
@@ -22,7 +22,7 @@ def test_safety_patches(hrt, models):
     groups = ["gratings", "sphere"] + (["models"] if FS.shared_present() else [])
     runs = [r for g in groups for r in FS.group_runs(hrt, models, g)]
     missing = FS.safety_members_missing(runs)
-    assert not missing, f"hrt query --json has no {missing} per contact (issue 8, patch safety)"
+    assert not missing, f"hrt query --json has no {missing} per contact"
     wrong = [(r, c, p) for r in runs for c, p in zip(r.query["contacts"], r.patches) if p.wrong_way]
     print(f"\n{len(wrong)} wrong-way patches, {sum(bool(c['refused']) for _, c, _ in wrong)} refused, "
           f"{sum(bool(np.any(c['force'])) for _, c, _ in wrong)} with force")

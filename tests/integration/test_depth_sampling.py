@@ -1,4 +1,4 @@
-"""Issue 8, sampling: the runtime's depth against the truth sampled every 0.1 atlas
+"""Sampling: the runtime's depth against the truth sampled every 0.1 atlas
 texel over the window (not only at the texel centres), on the runs of
 tests/integration/test_fullsurface_depth.py (fullsurface.group_runs: the angled gratings at six
 offsets, the bumpy sphere on the textured plate, and one shared model on the textured
@@ -30,7 +30,7 @@ SAMPLING_MODEL = "fandisk"
 # sphere run in `make test`.
 @pytest.mark.parametrize("group", ["gratings", "sphere", pytest.param("models", marks=pytest.mark.slow)])
 def test_depth_against_continuous_truth(group, hrt, models):
-    """Sampling (issue 8): against the truth sampled every 0.1 atlas texel over the window
+    """Sampling: against the truth sampled every 0.1 atlas texel over the window
     (fullsurface.continuous_truth: the maximum of h_A - h_B over the window, not only at
     the texel centres), |delta_hrt - delta_continuous| <= the patch's bound + s cell /
     sqrt(2). Why that bound: the runtime samples the texel centres, each within its

@@ -1,5 +1,5 @@
 """The paper's roughness experiments (Sec. 6.3, Fig. 7 and 8) as quantitative tests
-(issue 12, item 5), on small versions of the scenes, through the real chain:
+on small versions of the scenes, through the real chain:
 `hbake texture` gives a plain box a striped top, `hbake bake` bakes it, `hrt run
 --lockstep` runs the session with friction off (as in the paper) and a scripted device,
 and the trace (docs/trace-format.md) is compared with closed forms.

@@ -1,4 +1,4 @@
-"""Issue 8: the runtime's depth against the FULL-resolution meshes, through the real chain.
+"""The runtime's depth against the FULL-resolution meshes, through the real chain.
 
 ``hbake bake`` (``hbake.routes.pipeline.bake``), then ``hrt query --json`` at N = 50 and 128,
 then rays along each patch's n on the two full meshes through the very texel centres
@@ -48,7 +48,7 @@ FACE_TILT = 5.0
 
 
 def _check(group, runs, smooth: bool):
-    """Print every patch and the summary; then the assertions of issue 8."""
+    """Print every patch and the summary; then the assertions."""
     for r in runs:
         for p in r.patches:
             print("  " + p.line())

@@ -1,4 +1,4 @@
-"""The GL backend against the CPU backend through the real chain (issue 10, "Tests that must exist").
+"""The GL backend against the CPU backend through the real chain.
 
 Meshes are baked by ``hbake bake`` (tests/fullsurface.py: the angled grating at 23
 degrees whose coarse mesh follows its ridges only in part, the bumpy sphere on the

@@ -1,4 +1,4 @@
-"""The patch normal n (issue 8, cause 7) checked by the wrench in the demo's scene.
+"""The patch normal n checked by the wrench in the demo's scene.
 
 examples/demo.sh: two baked ridged blocks (hbake's procedural ridged_block at the
 default 600 coarse faces, so the coarse mesh follows the ridges and CoACD cuts it

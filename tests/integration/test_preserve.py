@@ -1,4 +1,4 @@
-"""Issue 11: the parameterization-preserving route (``hbake bake --method preserve``) and
+"""The parameterization-preserving route (``hbake bake --method preserve``) and
 ``--method auto``, through the real chain (``hbake bake`` in a child process, ``hrt query``).
 
 * the wrinkled torus (128,000 triangles) by preserve: at most 2,000 coarse triangles; no
@@ -17,7 +17,7 @@
   route's patch is within its own issue-8 bound of the same full-mesh truth, so the two
   depths differ by at most the sum of the two bounds (the triangle inequality; the bound
   is the brute-force tests' ``slope_jump * t / 2`` interpolation error generalised by
-  issue 8 to ``(t/2) ds sqrt(1 + s^2) + e s`` per surface);
+  the depth tests to ``(t/2) ds sqrt(1 + s^2) + e s`` per surface);
 * determinism: a rebake by preserve is byte-identical.
 
 Bakes are cached per session (FULLSURFACE_CACHE=DIR keeps them across sessions, keyed by
@@ -49,8 +49,8 @@ REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO / "tests" / "golden"))
 import make_golden  # noqa: E402
 
-TORUS_TARGET = 2000                    # issue 11: at most 2,000 coarse triangles
-#: Off-surface bound at covered texels (issue 11: at most 1 texel).
+TORUS_TARGET = 2000                    # the route's target: at most 2,000 coarse triangles
+#: Off-surface bound at covered texels.
 OFF_SURFACE_TEXELS = 1.0
 #: A stored texel is a full-surface point: float32 storage of coordinates up to 0.07 m
 #: rounds by at most 2^-24 * 0.07 * sqrt(3) = 7e-9 m; 1e-7 m leaves room for the
@@ -208,7 +208,7 @@ def texel_coordinates_of(uv, W, H):
 def test_torus_atlas_on_the_full_surface(bakes):
     """At every covered texel: the stored point on the full surface (STORED_TOL), and the
     bilinear reconstruction at the midpoints to its covered 4-neighbours and at the centre
-    of its 2x2 quad within 1 texel (issue 11) of it, except across a discontinuity of the
+    of its 2x2 quad within 1 texel of it, except across a discontinuity of the
     format's rule (neighbours more than 4 texels apart, which no reader interpolates)."""
     model = bakes["torus_pp"]
     b = read_bundle(model.bundle, verify=False)
@@ -283,7 +283,7 @@ def _runs(hrt, bakes, route):
     return _RUNS[route]
 
 
-def test_torus_depths_within_issue8_bound(hrt, bakes):
+def test_torus_depths_within_the_depth_bound(hrt, bakes):
     runs = _runs(hrt, bakes, "pp")
     pats = [p for _, _, ps in runs for p in ps]
     for p in pats:

@@ -1,4 +1,4 @@
-"""`hrt run` end to end (issue 9, item 7 and "Tests that must exist"): the UDP bridge
+"""`hrt run` end to end: the UDP bridge
 driven by examples/udp_device.py's encoder, the example device plugin loaded from a
 scene file, lockstep reproducibility and replay of a trace, Ctrl-C, the error exits,
 the 3-DoF torque policy and the soft start, all through the `hrt` binary on baked
@@ -678,7 +678,7 @@ def test_soft_start_ramps_the_force_in_linearly(session_bakes, hrt, tmp_path):
 
 
 # ----------------------------------------------------------------------------
-# The GL backend in a session (issue 10)
+# The GL backend in a session
 # ----------------------------------------------------------------------------
 
 

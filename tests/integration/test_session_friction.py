@@ -1,4 +1,4 @@
-"""Coulomb friction through the real chain (issue 9, "Tests that must exist"): a baked
+"""Coulomb friction through the real chain: a baked
 untextured steel block on a baked untextured slab tilted by alpha about a horizontal
 axis yawed 17 degrees from y (the slope is not along an axis), gravity on and the
 coupling off (a free body), `hrt run --lockstep` at 1 kHz.

@@ -1,4 +1,4 @@
-"""Haptic-session physics through the real chain (issue 9, "Tests that must exist"):
+"""Haptic-session physics through the real chain:
 bundles baked by `hbake bake` (tests/sessions.py, tests/fullsurface.py), sessions run by
 `hrt run --lockstep` with a scripted device at 1 kHz, traces read against
 docs/trace-format.md.

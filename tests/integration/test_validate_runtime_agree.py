@@ -1,4 +1,4 @@
-"""A bundle that validates always runs (issue 7): `hbake validate` refuses at least
+"""A bundle that validates always runs: `hbake validate` refuses at least
 everything the C++ loader (`hrt check`) refuses, and every bundle both accept survives
 `hrt query B B`.
 

@@ -1,4 +1,4 @@
-"""`hbake batch` (issue 13): caching, failure isolation, the report, memory-bounded jobs,
+"""`hbake batch`: caching, failure isolation, the report, memory-bounded jobs,
 examples/Makefile, and the Dask executor against a real LocalCluster with a worker
 killed mid-job.
 

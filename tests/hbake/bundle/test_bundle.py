@@ -875,7 +875,7 @@ def _make_golden():
 # --------------------------------------------------------------------------- determinism of a real bake
 
 def test_bake_twice_gives_byte_identical_bundles(tmp_path):
-    """Issue 2, item 5: the same input and settings give a byte-identical bundle
+    """The same input and settings give a byte-identical bundle
     (the pebble input and settings of the golden bundles, baked twice)."""
     make_golden = _make_golden()
     outs = []

@@ -1,6 +1,6 @@
 """`hbake bake` on bad input: one clear line, a distinct exit code, nothing left behind.
 
-The corpus is generated here (issue 2, "Tests that must exist"). Every case runs
+The corpus is generated here. Every case runs
 the real console script in a subprocess and checks:
   * the exit code is the documented one (hbake/errors.py), distinct per kind;
   * stderr is exactly one line, starting with 'hbake: ', naming the culprit;

@@ -102,8 +102,8 @@ def test_validate_huge_format_version_is_a_version_error(cube):
 
 
 def test_validate_long_major_one_with_zeros_is_refused_like_the_loader(cube):
-    # the C++ loader caps format_version at 32 characters (issue 7: hbake refuses what it
-    # refuses); up to that, leading zeros are compared as digits: still version 1
+    # the C++ loader caps format_version at 32 characters; up to that, leading zeros are
+    # compared as digits: still version 1
     m = json.loads((cube / "manifest.json").read_text())
     m["format_version"] = "0" * 5000 + "1.0"
     (cube / "manifest.json").write_bytes(hb.manifest_bytes(m))
@@ -223,7 +223,7 @@ def _set_atlas_size(bundle: Path, w: int, h: int) -> None:
 @pytest.mark.parametrize("w, h, cls", [(8193, 16, "atlas"), (16, 100_000, "schema"),
                                        (8192, 4096, "atlas"), (10**30, 1, "schema")])
 def test_validate_refuses_an_atlas_over_the_limit_before_decoding(cube, w, h, cls):
-    # sides past 65536 are a schema error, as in the C++ loader (issue 7)
+    # sides past 65536 are a schema error, as in the C++ loader
     _set_atlas_size(cube, w, h)
     if cls == "atlas":
         line = _validate(cube, "atlas", "limit")
@@ -660,7 +660,7 @@ def test_footprint_spans_equal_the_bounding_box_scan(w, h):
         assert np.array_equal(got[1][sel], want[0]) and np.array_equal(got[2][sel], want[1]), (t, uv[t])
 
 
-# --------------------------------------------------------------------------- issue 7: validate refuses what the loader refuses
+# --------------------------------------------------------------------------- validate refuses what the loader refuses
 
 def _with_coverage_of_the_uvs(bundle: Path) -> Path:
     """The bundle with A = 1 at exactly the texels whose centre lies inside (or within the

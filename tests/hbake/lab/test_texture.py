@@ -1,4 +1,4 @@
-"""`hbake texture` (issue 12, item 1): relief synthesis by refinement and displacement.
+"""`hbake texture`: relief synthesis by refinement and displacement.
 
 Through the command (a child process, as a user runs it): the relief's heights against
 the pattern's closed form, the adaptive refinement's edge bound, closed meshes staying

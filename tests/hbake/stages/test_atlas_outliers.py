@@ -1,4 +1,4 @@
-"""Issue 8, cause 5 ("Outliers and jumps"): the bake's repair of jumps between
+"""Outliers and jumps: the bake's repair of jumps between
 neighbouring texels (hbake/stages/atlas.py, repair_jumps) on a case with a known answer, and
 format 1.1's compatibility with 1.0.
 

@@ -1,4 +1,4 @@
-"""Procedural models and end-to-end bakes (issue 2, item 7 and "Tests that must exist").
+"""Procedural models and end-to-end bakes.
 
 Part 1 checks the generators of hbake/lab/procedural.py: exact triangle counts
 (Table 1), closed and outward meshes (checked by point-in-solid queries, not by
@@ -247,7 +247,7 @@ from hbake.settings import BakeSettings  # noqa: E402
 
 SHARED_DIR = shared_models_dir()  # $HBAKE_MODELS, else ../shared/models beside the repository
 
-#: Issue 2: on the procedural models both directions of the reconstruction error
+#: On the procedural models both directions of the reconstruction error
 #: have p95 below half a texel. Why half a texel: the atlas samples the surface
 #: once per texel, so a point mapped through it can be off by at most about
 #: half a texel step where the relief is resolved (Sec. 7.2: wavelengths of
@@ -514,7 +514,7 @@ def shared_bundles(tmp_path_factory):
     def get(name):
         src = SHARED_DIR / name
         if not src.is_file():
-            # With CI=true a missing ../shared is a failure, not a skip (issue 8).
+            # With CI=true a missing ../shared is a failure, not a skip.
             (pytest.fail if os.environ.get("CI") else pytest.skip)(
                 f"shared model {name} not found in {SHARED_DIR} "
                 f"(the read-only third-party meshes live at ../shared/models)")
@@ -547,7 +547,7 @@ def test_bake_shared(name, shared_bundles):
     # What the shared README says about the files, as the manifest records it.
     open_meshes = {"stanford_bunny.obj", "mountain_terrain.obj"}
     assert m["source"]["closed"] == (name not in open_meshes)
-    if name in open_meshes:       # documented fallback, with a warning (issue 2)
+    if name in open_meshes:       # documented fallback, with a warning
         assert m["mass"]["basis"] != "full" and any("not closed" in w for w in m["warnings"])
     else:
         assert m["mass"]["basis"] == "full"
@@ -556,7 +556,7 @@ def test_bake_shared(name, shared_bundles):
 
 
 # --------------------------------------------------------------------------
-# Outliers (issue 8, cause 5): every reconstructed point a lookup can read is on the surface
+# Outliers: every reconstructed point a lookup can read is on the surface
 # --------------------------------------------------------------------------
 
 #: Two 4-neighbour texels farther apart than this many texel sizes are a discontinuity
@@ -564,7 +564,7 @@ def test_bake_shared(name, shared_bundles):
 RULE_TEXELS = 4.0
 #: Bound on the off-surface distance (closest point on the full mesh) of every covered
 #: texel's value and of the midpoint of every uncut edge to a 4-neighbour, in texel sizes.
-#: Why 1 texel (issue 8, fixed before measuring): texel values are ray hits or closest
+#: Why 1 texel: texel values are ray hits or closest
 #: points, on the surface up to float32 rounding; a chord between neighbours on the
 #: surface strays from it by its sag, a small fraction of a texel where the relief is
 #: resolved (wavelengths of two texels and more, Sec. 7.2), and by up to half its length
@@ -638,7 +638,7 @@ def reconstruction_offsets(bundle, full_vertices, full_faces):
 
 @pytest.mark.parametrize("name", _params(SHARED_MODELS, KNOWN_SHARED))
 def test_atlas_outliers(name, shared_bundles):
-    """Issue 8, "Outliers": the off-surface distance of every covered texel's value and of
+    """Outliers: the off-surface distance of every covered texel's value and of
     every uncut edge midpoint (what a runtime lookup that follows the discontinuity rule
     can read) is at most OUTLIER_TEXELS, away from open borders (OPEN_BORDER_MARGIN_TEXELS).
     Reuses the bakes of test_bake_shared; the manifest records the bake's repair."""

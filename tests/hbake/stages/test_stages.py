@@ -757,7 +757,7 @@ def test_map_triangles_against_sampling():
 
 
 def test_pp_method_unreachable_leaves_nothing(tmp_path, small_model):
-    """Issue 11 implements method 'pp' (tests/integration/test_preserve.py); a target it cannot reach
+    """Method 'pp' (tests/integration/test_preserve.py): a target it cannot reach
     with every chart border locked is its own error and writes nothing."""
     from hbake.errors import TargetUnreachableError
     from hbake.routes.pipeline import bake

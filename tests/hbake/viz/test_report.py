@@ -1,4 +1,4 @@
-"""`hbake report` (issue 13): the HTML page and its PNGs, checked in headless Chromium
+"""`hbake report`: the HTML page and its PNGs, checked in headless Chromium
 (Debian's chromium + chromium-driver through selenium): the page loads, every image is
 decoded (naturalWidth > 0), and every figure on the page equals the manifest's value.
 """
