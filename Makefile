@@ -51,13 +51,15 @@ runtime: apt venv
 test: setup lint test-cpp test-py test-fuzz
 
 # Linters, pinned in pyproject.toml's test extra: ruff over the Python ([tool.ruff]: pyflakes,
-# pycodestyle's errors, no np.empty) and clang-format over the C and C++ (.clang-format).
+# pycodestyle's errors, no np.empty), clang-format over the C and C++ (.clang-format), and
+# no runtime function over 150 lines (tools/check_function_length.py, with lizard).
 # `make format` applies clang-format; ruff's fixes are `.venv/bin/ruff check --fix`.
 CXX_SOURCES = git ls-files '*.cpp' '*.h' '*.c'
 lint:
 	$(VENV)/bin/ruff check hbake tests tools examples
 	$(PY) tools/check_file_length.py
 	$(CXX_SOURCES) | xargs $(VENV)/bin/clang-format --dry-run -Werror
+	$(PY) tools/check_function_length.py
 
 format:
 	$(CXX_SOURCES) | xargs $(VENV)/bin/clang-format -i

@@ -329,7 +329,8 @@ std::vector<int> int_list(const std::vector<std::string>& args, const std::strin
   return out;
 }
 
-void run_bench(BenchOptions o) {
+// The flags' values, checked (after CLI11's own checks).
+void check_bench_options(BenchOptions& o) {
   o.scene.check_backend_flags();
   if (!o.resolutions_arg.empty()) o.resolutions = int_list(o.resolutions_arg, "--resolutions");
   if (!o.copies_arg.empty()) o.copies = int_list(o.copies_arg, "--copies");
@@ -353,30 +354,20 @@ void run_bench(BenchOptions o) {
   if (!(o.settle_depth > 0 && o.settle_depth <= kMaxSettleDepth))
     throw Exit(kUsage,
                "--settle-depth: must be in (0, " + fmt_g(kMaxSettleDepth) + "] m, got " + fmt_g(o.settle_depth));
-  hrt::Pose pose_a = parse_pose(o.pose_a, "--pose-a");
-  const hrt::Pose pose_b = parse_pose(o.pose_b, "--pose-b");
-  const hrt::Vec3 path(o.path[0], o.path[1], o.path[2]);
+}
 
-  const auto models = load_models({o.a, o.b}, o.scene.verify_hashes);
-  const hrt::Model& A = *models[0];
-  const hrt::Model& B = *models[1];
-  hrt::SceneOptions so = o.scene.scene_options();
+// The GL split of one (K, N), printed after the copies table.
+struct CopiesGl {
+  int k, n;
+  double patches_med;
+  GlSummary gl;
+};
 
-  // The depth backend, for every scene below (they all hold A and copies of
-  // B, the models it was made for). auto's probe runs at the first N timed.
-  // --settle stays on the CPU code: it places A, it is not timed.
-  hrt::SceneOptions probe_options = so;
-  probe_options.force.resolution = o.resolutions.front();
-  const CliBackend backend = select_depth_backend(o.scene, {&A, &B}, probe_options, true, true);
-
-  if (!o.settle.empty()) {
-    const hrt::Vec3 dir(o.settle[0], o.settle[1], o.settle[2]);
-    if (!(dir.norm() > 0)) throw Exit(kUsage, "--settle: the direction must not be zero");
-    so.force.resolution = hrt::kDefaultResolution;
-    const auto scene = make_scene({&A, &B}, so);
-    pose_a = settle(*scene, pose_a, pose_b, dir, o.settle_depth);
-  }
-
+// The machine, the models, the poses and the path (JSON), printed as the
+// header of the tables.
+nlohmann::json bench_header(const BenchOptions& o, const hrt::Model& A, const hrt::Model& B,
+                            const hrt::SceneOptions& so, const CliBackend& backend, const hrt::Pose& pose_a,
+                            const hrt::Pose& pose_b, const hrt::Vec3& path) {
   nlohmann::json js;
   const std::string machine = machine_name();
   const unsigned cores = std::thread::hardware_concurrency();
@@ -411,8 +402,13 @@ void run_bench(BenchOptions o) {
         path.x(), path.y(), path.z(), o.frames, o.passes);
   }
 
-  // 1. The scraping path, per N.
-  std::map<int, std::vector<FrameRecord>> records;
+  return js;
+}
+
+// 1. The scraping path, per N (records: each N's frames).
+nlohmann::json bench_path(const BenchOptions& o, const hrt::Model& A, const hrt::Model& B, hrt::SceneOptions& so,
+                          const CliBackend& backend, const hrt::Pose& pose_a, const hrt::Pose& pose_b,
+                          const hrt::Vec3& path, std::map<int, std::vector<FrameRecord>>& records) {
   nlohmann::json jpath = nlohmann::json::array();
   if (!o.json) {
     std::printf("Scraping path: median per frame (us)\n");
@@ -450,9 +446,12 @@ void run_bench(BenchOptions o) {
                       : "");
     }
   }
-  js["path_results"] = jpath;
+  return jpath;
+}
 
-  // 2. The same frames binned by patch count.
+// 2. The same frames binned by patch count.
+nlohmann::json bench_by_patch_count(const BenchOptions& o, const CliBackend& backend,
+                                    std::map<int, std::vector<FrameRecord>>& records) {
   std::map<int, std::map<int, std::vector<double>>> bins;  // patches -> N -> totals
   std::map<int, std::map<int, std::vector<double>>> bins_force;
   for (const auto& [n, rec] : records)
@@ -488,9 +487,13 @@ void run_bench(BenchOptions o) {
     if (!o.json) std::printf("\n");
     jbins.push_back(jb);
   }
-  js["by_patch_count"] = jbins;
+  return jbins;
+}
 
-  // 3. K copies of B spread along the path.
+// 3. K copies of B spread along the path.
+nlohmann::json bench_copies(const BenchOptions& o, const hrt::Model& A, const hrt::Model& B, hrt::SceneOptions& so,
+                            const CliBackend& backend, const hrt::Pose& pose_a, const hrt::Pose& pose_b,
+                            const hrt::Vec3& path, std::vector<CopiesGl>& copies_gl) {
   nlohmann::json jcopies = nlohmann::json::array();
   if (!o.json) {
     std::printf("\nK copies of B along the path: median total (texture force) per frame, us\n%4s %7s %8s", "K", "pairs",
@@ -499,12 +502,6 @@ void run_bench(BenchOptions o) {
     std::printf("\n");
   }
   const int copy_frames = std::max(1, o.frames / 5);
-  struct CopiesGl {  // the GL split of one (K, N), printed after the copies table
-    int k, n;
-    double patches_med;
-    GlSummary gl;
-  };
-  std::vector<CopiesGl> copies_gl;
   for (int k : o.copies) {
     std::vector<const hrt::Model*> objects{&A};
     std::vector<hrt::Pose> base{pose_a};
@@ -540,9 +537,12 @@ void run_bench(BenchOptions o) {
     jcopies.push_back(jk);
     if (!o.json) std::printf("%4d %7.0f %8.0f%s\n", k, first.pairs_med, first.patches_med, line.c_str());
   }
-  js["copies"] = jcopies;
+  return jcopies;
+}
 
-  // 4. The GL backend's split (profiled), per N and patch count.
+// 4. The GL backend's split (profiled), per N and patch count.
+void print_gl_split(const BenchOptions& o, const CliBackend& backend, std::map<int, std::vector<FrameRecord>>& records,
+                    const std::vector<CopiesGl>& copies_gl) {
   if (backend.gl && !o.json) {
     std::printf("\nGL depth backend split: median per frame with patches, us (profiled: a wait after each stage)\n");
     std::printf("%-8s %5s %8s %7s %9s %9s %9s %9s %10s %9s %6s\n", "scene", "N", "patches", "frames", "upload", "draw",
@@ -562,6 +562,41 @@ void run_bench(BenchOptions o) {
       print_gl_row("K = " + std::to_string(c.k), c.n, patches, c.gl);
     }
   }
+}
+
+void run_bench(BenchOptions o) {
+  check_bench_options(o);
+  hrt::Pose pose_a = parse_pose(o.pose_a, "--pose-a");
+  const hrt::Pose pose_b = parse_pose(o.pose_b, "--pose-b");
+  const hrt::Vec3 path(o.path[0], o.path[1], o.path[2]);
+
+  const auto models = load_models({o.a, o.b}, o.scene.verify_hashes);
+  const hrt::Model& A = *models[0];
+  const hrt::Model& B = *models[1];
+  hrt::SceneOptions so = o.scene.scene_options();
+
+  // The depth backend, for every scene below (they all hold A and copies of
+  // B, the models it was made for). auto's probe runs at the first N timed.
+  // --settle stays on the CPU code: it places A, it is not timed.
+  hrt::SceneOptions probe_options = so;
+  probe_options.force.resolution = o.resolutions.front();
+  const CliBackend backend = select_depth_backend(o.scene, {&A, &B}, probe_options, true, true);
+
+  if (!o.settle.empty()) {
+    const hrt::Vec3 dir(o.settle[0], o.settle[1], o.settle[2]);
+    if (!(dir.norm() > 0)) throw Exit(kUsage, "--settle: the direction must not be zero");
+    so.force.resolution = hrt::kDefaultResolution;
+    const auto scene = make_scene({&A, &B}, so);
+    pose_a = settle(*scene, pose_a, pose_b, dir, o.settle_depth);
+  }
+
+  nlohmann::json js = bench_header(o, A, B, so, backend, pose_a, pose_b, path);
+  std::map<int, std::vector<FrameRecord>> records;
+  js["path_results"] = bench_path(o, A, B, so, backend, pose_a, pose_b, path, records);
+  js["by_patch_count"] = bench_by_patch_count(o, backend, records);
+  std::vector<CopiesGl> copies_gl;
+  js["copies"] = bench_copies(o, A, B, so, backend, pose_a, pose_b, path, copies_gl);
+  print_gl_split(o, backend, records, copies_gl);
   if (o.json) {
     const std::string bad = first_non_finite(js);
     if (!bad.empty())

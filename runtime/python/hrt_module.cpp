@@ -227,14 +227,8 @@ struct PyRunner {
   }
 };
 
-}  // namespace
-
-NB_MODULE(_hrt, m) {
-  m.doc() = "hrt: haptic rendering of textured models (the C++ runtime, bound with nanobind)";
-  m.attr("__version__") = HRT_VERSION_STRING;
-  m.attr("BUNDLE_FORMAT_MAJOR") = HRT_BUNDLE_FORMAT_MAJOR;
-  m.attr("BUNDLE_FORMAT_MINOR") = HRT_BUNDLE_FORMAT_MINOR;
-
+// hrt::BundleError -> hrt.BundleError and the other exceptions.
+void bind_errors(nb::module_& m) {
   // hrt::BundleError -> hrt.BundleError (a ValueError) with the C++ message
   // (one line naming the file and the problem) and error_class set by the
   // Python package (hrt/__init__.py parses nothing: it is passed through).
@@ -265,7 +259,10 @@ NB_MODULE(_hrt, m) {
       PyErr_SetObject(bundle_error.ptr(), err.ptr());
     }
   });
+}
 
+// hrt.Model and hrt.load_bundle.
+void bind_model(nb::module_& m) {
   nb::class_<hrt::Model>(m, "Model", "A loaded haptic bundle (hrt::Model): coarse mesh, atlas, pieces, mass.")
       .def_ro("path", &hrt::Model::path, "The bundle directory as given.")
       .def_ro("name", &hrt::Model::name, "The source mesh's file name (manifest).")
@@ -300,7 +297,10 @@ NB_MODULE(_hrt, m) {
       "path"_a, "verify_hashes"_a = true,
       "Loads and checks a haptic bundle (.hbundle directory). Raises hrt.BundleError (a ValueError, with\n"
       "error_class 'io', 'version', 'schema', 'hash', 'mesh', 'atlas' or 'pieces') on bad input.");
+}
 
+// hrt.Scene: frames at given poses.
+void bind_scene(nb::module_& m) {
   nb::class_<PyScene>(m, "Scene",
                       "A scene (the probe A first, then the objects B) and its preallocated frame state.\n"
                       "One query at a time per Scene (it owns the frame's scratch).")
@@ -389,75 +389,78 @@ NB_MODULE(_hrt, m) {
             return s.scene->tolerance(b);
           },
           "b"_a, "The pair tolerance of object b >= 1 against the probe (m).");
+}
 
-  nb::class_<PyRunner>(
-      m, "Runner",
-      "A scene file's haptic session (docs/scene-format.md) in lockstep: the scripted or virtual device,\n"
-      "the device loop and the simulation of `hrt run --lockstep`, frame by frame.")
-      .def(
-          "__init__",
-          [](PyRunner* self, const std::string& scene, nb::object duration, const std::string& trace,
-             const std::string& device, bool write_trace, bool keep_frames) {
-            if (device != "file" && device != "virtual")
-              throw std::invalid_argument("device must be \"file\" or \"virtual\", got \"" + device + "\"");
-            hrt::RunConfig cfg = hrt::load_run_config(scene);
-            hrt::RunOverrides o;
-            o.lockstep = true;
-            if (!duration.is_none()) o.duration = nb::cast<double>(duration);
-            o.trace = trace;
-            hrt::apply_overrides(cfg, o);
-            if (!write_trace) cfg.trace.path.clear(), cfg.trace.device_log.clear();
-            if (device == "virtual" && cfg.device.type != "virtual") {
-              // The file's device replaced by a virtual handle holding the
-              // probe's initial pose (its limits and workspace kept; a
-              // plugin's limits are its own, so the file's defaults apply).
-              cfg.device.type = "virtual";
-              cfg.device.start = cfg.loop.map.to_device(cfg.objects.at(0).pose);
-              cfg.device.start_set = false;
-            }
-            hrt::check_run_outputs(cfg);
-            if (cfg.device.type != "scripted" && cfg.device.type != "virtual")
-              throw std::invalid_argument(cfg.file + ": lockstep needs a scripted or virtual device (device.type = \"" +
-                                          cfg.device.type + "\")");
-            auto runner = std::make_unique<hrt::Runner>(cfg);
-            runner->open();
-            std::unique_ptr<hrt::TraceWriter> writer;
-            if (!runner->config().trace.path.empty()) {
-              writer = std::make_unique<hrt::TraceWriter>();
-              writer->open(runner->config().trace.path, runner->config());
-            }
-            new (self) PyRunner();
-            self->runner = std::move(runner);
-            self->trace = std::move(writer);
-            self->keep = keep_frames;
-          },
-          "scene"_a, "duration"_a = nb::none(), "trace"_a = "", "device"_a = "file", "write_trace"_a = true,
-          "keep_frames"_a = true,
-          "Loads the scene file (its bundles, trajectories and scripted or virtual device) and opens the\n"
-          "session. duration (s) and trace (a path) override the file's, as `hrt run --duration --trace`\n"
-          "do. device=\"virtual\" replaces the file's device with a virtual one (set_device_pose) that\n"
-          "starts where the probe starts, keeping the file's limits and workspace map. write_trace=False\n"
-          "writes no trace even where the file names one; keep_frames=False keeps no frames in `frames`\n"
-          "(a long interactive session).\n"
-          "Raises hrt.SceneFileError, hrt.BundleError, hrt.DeviceError or ValueError.")
-      .def(
-          "step",
-          [](PyRunner& r) -> nb::object {
-            if (r.finished) return nb::none();
-            const hrt::SessionFrame* fr = nullptr;
-            {
-              nb::gil_scoped_release release;
-              fr = r.runner->step();
-            }
-            if (!fr) {
-              r.finish();
-              return nb::none();
-            }
-            r.record(*fr);
-            return r.frame_dict(*fr);
-          },
-          "Runs the device loop to the next simulation frame and returns it (t, frame, probe and target\n"
-          "poses (7,), contact, coupling and device wrenches (6,), patches), or None at the end.")
+// hrt.Runner: __init__.
+void bind_runner_init(nb::class_<PyRunner>& cls) {
+  cls.def(
+      "__init__",
+      [](PyRunner* self, const std::string& scene, nb::object duration, const std::string& trace,
+         const std::string& device, bool write_trace, bool keep_frames) {
+        if (device != "file" && device != "virtual")
+          throw std::invalid_argument("device must be \"file\" or \"virtual\", got \"" + device + "\"");
+        hrt::RunConfig cfg = hrt::load_run_config(scene);
+        hrt::RunOverrides o;
+        o.lockstep = true;
+        if (!duration.is_none()) o.duration = nb::cast<double>(duration);
+        o.trace = trace;
+        hrt::apply_overrides(cfg, o);
+        if (!write_trace) cfg.trace.path.clear(), cfg.trace.device_log.clear();
+        if (device == "virtual" && cfg.device.type != "virtual") {
+          // The file's device replaced by a virtual handle holding the
+          // probe's initial pose (its limits and workspace kept; a
+          // plugin's limits are its own, so the file's defaults apply).
+          cfg.device.type = "virtual";
+          cfg.device.start = cfg.loop.map.to_device(cfg.objects.at(0).pose);
+          cfg.device.start_set = false;
+        }
+        hrt::check_run_outputs(cfg);
+        if (cfg.device.type != "scripted" && cfg.device.type != "virtual")
+          throw std::invalid_argument(cfg.file + ": lockstep needs a scripted or virtual device (device.type = \"" +
+                                      cfg.device.type + "\")");
+        auto runner = std::make_unique<hrt::Runner>(cfg);
+        runner->open();
+        std::unique_ptr<hrt::TraceWriter> writer;
+        if (!runner->config().trace.path.empty()) {
+          writer = std::make_unique<hrt::TraceWriter>();
+          writer->open(runner->config().trace.path, runner->config());
+        }
+        new (self) PyRunner();
+        self->runner = std::move(runner);
+        self->trace = std::move(writer);
+        self->keep = keep_frames;
+      },
+      "scene"_a, "duration"_a = nb::none(), "trace"_a = "", "device"_a = "file", "write_trace"_a = true,
+      "keep_frames"_a = true,
+      "Loads the scene file (its bundles, trajectories and scripted or virtual device) and opens the\n"
+      "session. duration (s) and trace (a path) override the file's, as `hrt run --duration --trace`\n"
+      "do. device=\"virtual\" replaces the file's device with a virtual one (set_device_pose) that\n"
+      "starts where the probe starts, keeping the file's limits and workspace map. write_trace=False\n"
+      "writes no trace even where the file names one; keep_frames=False keeps no frames in `frames`\n"
+      "(a long interactive session).\n"
+      "Raises hrt.SceneFileError, hrt.BundleError, hrt.DeviceError or ValueError.");
+}
+
+// hrt.Runner: step, set_device_pose, target_to_device, run.
+void bind_runner_steps(nb::class_<PyRunner>& cls) {
+  cls.def(
+         "step",
+         [](PyRunner& r) -> nb::object {
+           if (r.finished) return nb::none();
+           const hrt::SessionFrame* fr = nullptr;
+           {
+             nb::gil_scoped_release release;
+             fr = r.runner->step();
+           }
+           if (!fr) {
+             r.finish();
+             return nb::none();
+           }
+           r.record(*fr);
+           return r.frame_dict(*fr);
+         },
+         "Runs the device loop to the next simulation frame and returns it (t, frame, probe and target\n"
+         "poses (7,), contact, coupling and device wrenches (6,), patches), or None at the end.")
       .def(
           "set_device_pose",
           [](PyRunner& r, nb::ndarray<const double, nb::shape<7>, nb::c_contig, nb::device::cpu> pose, bool clutch) {
@@ -504,23 +507,27 @@ NB_MODULE(_hrt, m) {
             }
             r.finish();
           },
-          "Runs the rest of the session (and closes its trace).")
-      .def_prop_ro(
-          "frames",
-          [](const PyRunner& r) {
-            const size_t f = r.t.size();
-            nb::dict d;
-            d["t"] = array(r.t.data(), {f});
-            d["probe"] = array(r.probe.data(), {f, 7});
-            d["target"] = array(r.target.data(), {f, 7});
-            d["contact"] = array(r.contact.data(), {f, 6});
-            d["coupling"] = array(r.coupling.data(), {f, 6});
-            d["device"] = array(r.device.data(), {f, 6});
-            d["patches"] = nb::cast(r.patches);
-            return d;
-          },
-          "Every frame so far as arrays: t (F,), probe and target (F, 7) poses, contact, coupling and\n"
-          "device (F, 6) wrenches (torques about the probe's centre of mass), patches (F,).")
+          "Runs the rest of the session (and closes its trace).");
+}
+
+// hrt.Runner: frames, done, device_loop.
+void bind_runner_results(nb::class_<PyRunner>& cls) {
+  cls.def_prop_ro(
+         "frames",
+         [](const PyRunner& r) {
+           const size_t f = r.t.size();
+           nb::dict d;
+           d["t"] = array(r.t.data(), {f});
+           d["probe"] = array(r.probe.data(), {f, 7});
+           d["target"] = array(r.target.data(), {f, 7});
+           d["contact"] = array(r.contact.data(), {f, 6});
+           d["coupling"] = array(r.coupling.data(), {f, 6});
+           d["device"] = array(r.device.data(), {f, 6});
+           d["patches"] = nb::cast(r.patches);
+           return d;
+         },
+         "Every frame so far as arrays: t (F,), probe and target (F, 7) poses, contact, coupling and\n"
+         "device (F, 6) wrenches (torques about the probe's centre of mass), patches (F,).")
       .def_prop_ro(
           "done", [](const PyRunner& r) { return r.finished; }, "True once the session has run.")
       .def_prop_ro(
@@ -538,4 +545,28 @@ NB_MODULE(_hrt, m) {
             return d;
           },
           "The device loop's counters (ticks, clamps, watchdog events, ...), as `hrt run --json` prints.");
+}
+
+// hrt.Runner: a scene file's session in lockstep.
+void bind_runner(nb::module_& m) {
+  nb::class_<PyRunner> cls(
+      m, "Runner",
+      "A scene file's haptic session (docs/scene-format.md) in lockstep: the scripted or virtual device,\n"
+      "the device loop and the simulation of `hrt run --lockstep`, frame by frame.");
+  bind_runner_init(cls);
+  bind_runner_steps(cls);
+  bind_runner_results(cls);
+}
+
+}  // namespace
+
+NB_MODULE(_hrt, m) {
+  m.doc() = "hrt: haptic rendering of textured models (the C++ runtime, bound with nanobind)";
+  m.attr("__version__") = HRT_VERSION_STRING;
+  m.attr("BUNDLE_FORMAT_MAJOR") = HRT_BUNDLE_FORMAT_MAJOR;
+  m.attr("BUNDLE_FORMAT_MINOR") = HRT_BUNDLE_FORMAT_MINOR;
+  bind_errors(m);
+  bind_model(m);
+  bind_scene(m);
+  bind_runner(m);
 }

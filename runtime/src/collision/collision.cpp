@@ -117,15 +117,15 @@ bool ModelGeometry::adjacent(int p, int q) const {
   return std::binary_search(first, last, q);
 }
 
-std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree) {
-  auto g = std::make_unique<ModelGeometry>();
-  g->model = &model;
+namespace {
+
+// The FCL convex of each piece, its face planes and bounds; the model's bounds.
+void convex_pieces(ModelGeometry& g, const Model& model) {
   const size_t np = model.pieces.size();
-  if (np == 0) throw std::invalid_argument(model.path + ": the model has no convex pieces");
   std::vector<Vec3> all;
-  g->convex.reserve(np);
-  g->piece_bounds.reserve(np);
-  g->planes.resize(np);
+  g.convex.reserve(np);
+  g.piece_bounds.reserve(np);
+  g.planes.resize(np);
   for (size_t p = 0; p < np; ++p) {
     const ConvexPiece& piece = model.pieces[p];
     auto verts = std::make_shared<std::vector<Vec3>>(piece.vertices.begin(), piece.vertices.end());
@@ -140,21 +140,25 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
       double len = nrm.norm();
       if (len > 0) {
         nrm /= len;
-        g->planes[p].push_back(Eigen::Vector4d(nrm.x(), nrm.y(), nrm.z(), nrm.dot(a)));
+        g.planes[p].push_back(Eigen::Vector4d(nrm.x(), nrm.y(), nrm.z(), nrm.dot(a)));
       }
     }
-    g->convex.push_back(std::make_shared<fcl::Convexd>(std::shared_ptr<const std::vector<Vec3>>(verts),
-                                                       static_cast<int>(piece.faces.size()),
-                                                       std::shared_ptr<const std::vector<int>>(faces), false));
-    g->piece_bounds.push_back(bounds_of(piece.vertices));
+    g.convex.push_back(std::make_shared<fcl::Convexd>(std::shared_ptr<const std::vector<Vec3>>(verts),
+                                                      static_cast<int>(piece.faces.size()),
+                                                      std::shared_ptr<const std::vector<int>>(faces), false));
+    g.piece_bounds.push_back(bounds_of(piece.vertices));
     all.insert(all.end(), piece.vertices.begin(), piece.vertices.end());
   }
-  g->bounds = bounds_of(all);
-  // Edges between non-coplanar faces, for the separating-axis depth. Pieces
-  // are closed and consistently wound (checked by the loader), so every
-  // directed edge (i, j) of a face has its reverse (j, i) in another face.
-  g->edges.resize(np);
-  g->sat.resize(np);
+  g.bounds = bounds_of(all);
+}
+
+// Edges between non-coplanar faces, for the separating-axis depth. Pieces
+// are closed and consistently wound (checked by the loader), so every
+// directed edge (i, j) of a face has its reverse (j, i) in another face.
+void hull_edges(ModelGeometry& g, const Model& model) {
+  const size_t np = model.pieces.size();
+  g.edges.resize(np);
+  g.sat.resize(np);
   for (size_t p = 0; p < np; ++p) {
     const ConvexPiece& piece = model.pieces[p];
     std::vector<std::pair<uint64_t, Vec3>> half;  // key (i << 32 | j), outward normal of its face
@@ -176,30 +180,39 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
       auto it = std::lower_bound(half.begin(), half.end(), rkey, [](const auto& x, uint64_t k) { return x.first < k; });
       if (it == half.end() || it->first != rkey) continue;
       if (n1.dot(it->second) > 1.0 - 1e-12) continue;  // coplanar: not an edge of the hull
-      g->edges[p].push_back({piece.vertices[i], piece.vertices[j], n1, it->second});
+      g.edges[p].push_back({piece.vertices[i], piece.vertices[j], n1, it->second});
     }
-    build_piece_sat(piece, g->edges[p], g->sat[p]);
+    build_piece_sat(piece, g.edges[p], g.sat[p]);
   }
-  g->face_piece_offset.assign(model.faces.size() + 1, 0);
+}
+
+// The pieces of each coarse face, and the faces' bounding spheres.
+void face_pieces(ModelGeometry& g, const Model& model) {
+  const size_t np = model.pieces.size();
+  g.face_piece_offset.assign(model.faces.size() + 1, 0);
   for (size_t p = 0; p < np; ++p)
-    for (uint32_t f : model.pieces[p].coarse_faces) ++g->face_piece_offset[f + 1];
-  for (size_t f = 0; f < model.faces.size(); ++f) g->face_piece_offset[f + 1] += g->face_piece_offset[f];
-  g->face_pieces.assign(static_cast<size_t>(g->face_piece_offset.back()), 0);
+    for (uint32_t f : model.pieces[p].coarse_faces) ++g.face_piece_offset[f + 1];
+  for (size_t f = 0; f < model.faces.size(); ++f) g.face_piece_offset[f + 1] += g.face_piece_offset[f];
+  g.face_pieces.assign(static_cast<size_t>(g.face_piece_offset.back()), 0);
   {
-    std::vector<int> fill(g->face_piece_offset.begin(), g->face_piece_offset.end() - 1);
+    std::vector<int> fill(g.face_piece_offset.begin(), g.face_piece_offset.end() - 1);
     for (size_t p = 0; p < np; ++p)
       for (uint32_t f : model.pieces[p].coarse_faces)
-        g->face_pieces[static_cast<size_t>(fill[f]++)] = static_cast<int>(p);
+        g.face_pieces[static_cast<size_t>(fill[f]++)] = static_cast<int>(p);
   }
-  g->face_spheres.reserve(model.faces.size());
+  g.face_spheres.reserve(model.faces.size());
   for (const Tri& f : model.faces) {
     const Vec3 c = (model.vertices[f[0]] + model.vertices[f[1]] + model.vertices[f[2]]) / 3.0;
     double r = 0.0;
     for (uint32_t vi : f) r = std::max(r, (model.vertices[vi] - c).norm());
-    g->face_spheres.emplace_back(c.x(), c.y(), c.z(), r);
+    g.face_spheres.emplace_back(c.x(), c.y(), c.z(), r);
   }
-  // Face buckets and chunks per piece (see ModelGeometry).
-  g->piece_first_bucket.assign(np + 1, 0);
+}
+
+// Face buckets and chunks per piece (see ModelGeometry).
+void face_buckets(ModelGeometry& g, const Model& model) {
+  const size_t np = model.pieces.size();
+  g.piece_first_bucket.assign(np + 1, 0);
   for (size_t p = 0; p < np; ++p) {
     std::vector<uint32_t> by_axis[6];
     for (uint32_t f : model.pieces[p].coarse_faces) {
@@ -221,49 +234,50 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
       // longest extent, then cut into runs of kChunkFaces.
       Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
       for (uint32_t f : list) {
-        lo = lo.cwiseMin(g->face_spheres[f].head<3>());
-        hi = hi.cwiseMax(g->face_spheres[f].head<3>());
+        lo = lo.cwiseMin(g.face_spheres[f].head<3>());
+        hi = hi.cwiseMax(g.face_spheres[f].head<3>());
       }
       int ax = 0;
       (hi - lo).maxCoeff(&ax);
       std::stable_sort(list.begin(), list.end(),
-                       [&](uint32_t x, uint32_t y) { return g->face_spheres[x][ax] < g->face_spheres[y][ax]; });
-      bucket.first_chunk = static_cast<int>(g->chunks.size());
+                       [&](uint32_t x, uint32_t y) { return g.face_spheres[x][ax] < g.face_spheres[y][ax]; });
+      bucket.first_chunk = static_cast<int>(g.chunks.size());
       for (size_t k = 0; k < list.size(); k += ModelGeometry::kChunkFaces) {
         ModelGeometry::FaceChunk ch;
-        ch.first = static_cast<int>(g->face_order.size());
+        ch.first = static_cast<int>(g.face_order.size());
         ch.count = static_cast<int>(std::min<size_t>(ModelGeometry::kChunkFaces, list.size() - k));
         ch.lo = Vec3::Constant(std::numeric_limits<double>::infinity());
         ch.hi = -ch.lo;
         for (int j = 0; j < ch.count; ++j) {
           const uint32_t f = list[k + static_cast<size_t>(j)];
-          const Eigen::Vector4d& sph = g->face_spheres[f];
+          const Eigen::Vector4d& sph = g.face_spheres[f];
           ch.lo = ch.lo.cwiseMin(sph.head<3>() - Vec3::Constant(sph[3]));
           ch.hi = ch.hi.cwiseMax(sph.head<3>() + Vec3::Constant(sph[3]));
-          g->face_order.push_back(f);
+          g.face_order.push_back(f);
         }
-        g->chunks.push_back(ch);
+        g.chunks.push_back(ch);
       }
-      bucket.num_chunks = static_cast<int>(g->chunks.size()) - bucket.first_chunk;
-      g->buckets.push_back(bucket);
+      bucket.num_chunks = static_cast<int>(g.chunks.size()) - bucket.first_chunk;
+      g.buckets.push_back(bucket);
     }
-    g->piece_first_bucket[p + 1] = static_cast<int>(g->buckets.size());
+    g.piece_first_bucket[p + 1] = static_cast<int>(g.buckets.size());
   }
-  g->scale = 2.0 * g->bounds.half.norm();
-  g->adjacency_tolerance = 1e-3 * g->scale;
+}
 
-  // Adjacency, from the bundle alone (no narrow phase: FCL 0.7's libccd EPA
-  // aborts the process on an assertion for some touching piece pairs, and
-  // an assertion cannot be caught; runtime/tests/data/epa_abort_pair.json).
-  // Pieces p, q are adjacent when
-  //   (a) their coarse-face lists share a coarse vertex (CoACD cuts the
-  //       surface between them, so the triangles on either side of a cut, or
-  //       one cut triangle listed by both, share vertices), or
-  //   (b) a face plane of one is a touching separating plane of the other:
-  //       all of q's vertices lie on or outside a face plane of p within
-  //       adjacency_tolerance and one lies on it (pieces meeting along an
-  //       interior cut face, e.g. an interior piece that lists no triangle),
-  //       with their boxes within the tolerance.
+// Adjacency, from the bundle alone (no narrow phase: FCL 0.7's libccd EPA
+// aborts the process on an assertion for some touching piece pairs, and
+// an assertion cannot be caught; runtime/tests/data/epa_abort_pair.json).
+// Pieces p, q are adjacent when
+//   (a) their coarse-face lists share a coarse vertex (CoACD cuts the
+//       surface between them, so the triangles on either side of a cut, or
+//       one cut triangle listed by both, share vertices), or
+//   (b) a face plane of one is a touching separating plane of the other:
+//       all of q's vertices lie on or outside a face plane of p within
+//       adjacency_tolerance and one lies on it (pieces meeting along an
+//       interior cut face, e.g. an interior piece that lists no triangle),
+//       with their boxes within the tolerance.
+void piece_adjacency(ModelGeometry& g, const Model& model) {
+  const size_t np = model.pieces.size();
   std::vector<std::vector<int>> adj(np);
   {
     // (a): per coarse vertex, the pieces whose faces use it.
@@ -281,9 +295,9 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
           adj[static_cast<size_t>(list[j])].push_back(list[i]);
         }
   }
-  const double tol = g->adjacency_tolerance;
+  const double tol = g.adjacency_tolerance;
   auto touching_plane = [&](size_t p, size_t q) {
-    for (const Eigen::Vector4d& pl : g->planes[p]) {
+    for (const Eigen::Vector4d& pl : g.planes[p]) {
       double lo = std::numeric_limits<double>::infinity();
       for (const Vec3& x : model.pieces[q].vertices) lo = std::min(lo, pl.head<3>().dot(x) - pl[3]);
       if (lo >= -tol && lo <= tol) return true;
@@ -292,8 +306,8 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
   };
   for (size_t p = 0; p < np; ++p) {
     for (size_t q = p + 1; q < np; ++q) {
-      const Bounds& bp = g->piece_bounds[p];
-      const Bounds& bq = g->piece_bounds[q];
+      const Bounds& bp = g.piece_bounds[p];
+      const Bounds& bq = g.piece_bounds[q];
       Vec3 gap = ((bp.center - bq.center).cwiseAbs() - bp.half - bq.half);
       if (gap.maxCoeff() > tol) continue;
       if (touching_plane(p, q) || touching_plane(q, p)) {
@@ -302,27 +316,46 @@ std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree
       }
     }
   }
-  g->adj_offset.assign(np + 1, 0);
+  g.adj_offset.assign(np + 1, 0);
   for (size_t p = 0; p < np; ++p) {
     std::sort(adj[p].begin(), adj[p].end());
     adj[p].erase(std::unique(adj[p].begin(), adj[p].end()), adj[p].end());
-    g->adj_offset[p + 1] = g->adj_offset[p] + static_cast<int>(adj[p].size());
-    g->adj_list.insert(g->adj_list.end(), adj[p].begin(), adj[p].end());
+    g.adj_offset[p + 1] = g.adj_offset[p] + static_cast<int>(adj[p].size());
+    g.adj_list.insert(g.adj_list.end(), adj[p].begin(), adj[p].end());
   }
+}
 
-  if (with_tree) {
-    g->tree = std::make_unique<fcl::DynamicAABBTreeCollisionManagerd>();
-    std::vector<fcl::CollisionObjectd*> objs;
-    for (size_t p = 0; p < np; ++p) {
-      auto obj = std::make_unique<fcl::CollisionObjectd>(g->convex[p]);
-      obj->setUserData(reinterpret_cast<void*>(static_cast<intptr_t>(p)));
-      obj->computeAABB();
-      objs.push_back(obj.get());
-      g->tree_objects.push_back(std::move(obj));
-    }
-    g->tree->registerObjects(objs);
-    g->tree->setup();
+// The broad phase's tree of the pieces.
+void piece_tree(ModelGeometry& g) {
+  const size_t np = g.convex.size();
+  g.tree = std::make_unique<fcl::DynamicAABBTreeCollisionManagerd>();
+  std::vector<fcl::CollisionObjectd*> objs;
+  for (size_t p = 0; p < np; ++p) {
+    auto obj = std::make_unique<fcl::CollisionObjectd>(g.convex[p]);
+    obj->setUserData(reinterpret_cast<void*>(static_cast<intptr_t>(p)));
+    obj->computeAABB();
+    objs.push_back(obj.get());
+    g.tree_objects.push_back(std::move(obj));
   }
+  g.tree->registerObjects(objs);
+  g.tree->setup();
+}
+
+}  // namespace
+
+std::unique_ptr<ModelGeometry> build_geometry(const Model& model, bool with_tree) {
+  auto g = std::make_unique<ModelGeometry>();
+  g->model = &model;
+  const size_t np = model.pieces.size();
+  if (np == 0) throw std::invalid_argument(model.path + ": the model has no convex pieces");
+  convex_pieces(*g, model);
+  hull_edges(*g, model);
+  face_pieces(*g, model);
+  face_buckets(*g, model);
+  g->scale = 2.0 * g->bounds.half.norm();
+  g->adjacency_tolerance = 1e-3 * g->scale;
+  piece_adjacency(*g, model);
+  if (with_tree) piece_tree(*g);
   return g;
 }
 

@@ -311,45 +311,50 @@ void match_tracks(const Scene& scene, State& st, const double cos_max, int* matc
   }
 }
 
-}  // namespace
+// What every patch of a frame shares: A (the first model), its pose, the options.
+struct ClusterContext {
+  const Scene& scene;
+  const ClusterOptions& copt;
+  const ForceOptions& fopt;
+  double cos_max;
+  const collision::World& world;
+  const ModelGeometry& ga;
+  const Model& A;
+  Eigen::Isometry3d world_from_a;
+  Vec3 c_a;
+  int N;
+  int max_n;  // auto resolution's budget (N without it)
+};
 
-void cluster_pairs(const Scene& scene, State& st) {
-  const int np = st.num_pairs;
-  const ClusterOptions& copt = scene.options().cluster;
-  const ForceOptions& fopt = scene.options().force;
-  const double cos_max = std::cos(copt.max_normal_angle_deg * M_PI / 180.0);
-  const collision::World& world = scene.world();
-  const ModelGeometry& ga = world.geometry(0);
-  const Model& A = scene.model(0);
-  const Eigen::Isometry3d world_from_a = st.poses[0].iso();
-  const Vec3 c_a = world_from_a * A.mass.center_of_mass;
-  const int N = fopt.resolution;
-  // Auto resolution: the grid texel each B's patches aim at (0 = none).
-  const int max_n = copt.auto_resolution ? std::max(N, copt.max_resolution) : N;
+// Auto resolution: the grid texel each B's patches aim at (0 = none).
+void set_target_cells(const ClusterContext& cx, State& st) {
   double* target_cell = st.target_cell.data();
-  for (int b = 0; b < scene.size(); ++b) {
+  for (int b = 0; b < cx.scene.size(); ++b) {
     double lam = std::numeric_limits<double>::infinity();
-    if (A.quality.min_wavelength > 0) lam = std::min(lam, A.quality.min_wavelength);
-    if (scene.model(b).quality.min_wavelength > 0) lam = std::min(lam, scene.model(b).quality.min_wavelength);
-    target_cell[b] = copt.auto_resolution && std::isfinite(lam) ? copt.auto_cell_fraction * lam : 0.0;
+    if (cx.A.quality.min_wavelength > 0) lam = std::min(lam, cx.A.quality.min_wavelength);
+    if (cx.scene.model(b).quality.min_wavelength > 0) lam = std::min(lam, cx.scene.model(b).quality.min_wavelength);
+    target_cell[b] = cx.copt.auto_resolution && std::isfinite(lam) ? cx.copt.auto_cell_fraction * lam : 0.0;
   }
+}
 
-  // --- weights and union-find ------------------------------------------------
+// Weights and union-find.
+void weigh_and_join(const ClusterContext& cx, State& st, const int np) {
+  const ModelGeometry& ga = cx.ga;
   for (int i = 0; i < np; ++i) {
     const PiecePair& p = st.pairs[static_cast<size_t>(i)];
     const double depth = p.tolerance > 0 ? std::max((p.tolerance - p.distance) / p.tolerance, 1e-3) : 1.0;
     st.pair_weight[static_cast<size_t>(i)] =
-        depth * pair_overlap_area(ga, world_from_a, world.geometry(p.object_b),
+        depth * pair_overlap_area(ga, cx.world_from_a, cx.world.geometry(p.object_b),
                                   st.poses[static_cast<size_t>(p.object_b)].iso(), p);
     st.uf_parent[static_cast<size_t>(i)] = i;
   }
   for (int i = 0; i < np; ++i) {
     const PiecePair& pi = st.pairs[static_cast<size_t>(i)];
-    const ModelGeometry& gb = world.geometry(pi.object_b);
+    const ModelGeometry& gb = cx.world.geometry(pi.object_b);
     for (int j = i + 1; j < np; ++j) {
       const PiecePair& pj = st.pairs[static_cast<size_t>(j)];
       if (pj.object_b != pi.object_b) break;  // detect_pairs emits the pairs grouped by object
-      if (pi.n.dot(pj.n) < cos_max) continue;
+      if (pi.n.dot(pj.n) < cx.cos_max) continue;
       if (!ga.adjacent(pi.piece_a, pj.piece_a)) continue;
       if (!gb.adjacent(pi.piece_b, pj.piece_b)) continue;
       // Proximity: on each side whose pieces differ, the contact points must
@@ -367,8 +372,11 @@ void cluster_pairs(const Scene& scene, State& st) {
       uf_union(st.uf_parent, i, j);
     }
   }
+}
 
-  // --- clusters (numbered by their first pair), capped by weight -------------
+// Clusters (numbered by their first pair), capped by weight; returns the
+// number of patches (also st.num_patches).
+int number_patches(const ClusterContext& cx, State& st, const int np) {
   int nclusters = 0;
   for (int i = 0; i < np; ++i) {
     const int r = uf_find(st.uf_parent, i);  // r <= i: the root is the smallest index
@@ -381,7 +389,7 @@ void cluster_pairs(const Scene& scene, State& st) {
     st.cluster_weight[static_cast<size_t>(st.pair_cluster[static_cast<size_t>(i)])] +=
         st.pair_weight[static_cast<size_t>(i)];
   }
-  const int maxp = copt.max_patches;
+  const int maxp = cx.copt.max_patches;
   const int K = std::min(nclusters, maxp);
   for (int c = 0; c < nclusters; ++c) st.cluster_patch[static_cast<size_t>(c)] = c;
   if (nclusters > maxp) {
@@ -398,8 +406,11 @@ void cluster_pairs(const Scene& scene, State& st) {
     st.warnings.patches_dropped += static_cast<uint64_t>(nclusters - maxp);
   }
   st.num_patches = K;
+  return K;
+}
 
-  // Pairs grouped by patch (counting sort, stable: ascending pair index).
+// Pairs grouped by patch (counting sort, stable: ascending pair index).
+void group_pairs(State& st, const int np, const int K) {
   for (int k = 0; k < K; ++k) st.patch_pair_count[static_cast<size_t>(k)] = 0;
   for (int i = 0; i < np; ++i) {
     const int k = st.cluster_patch[static_cast<size_t>(st.pair_cluster[static_cast<size_t>(i)])];
@@ -416,8 +427,10 @@ void cluster_pairs(const Scene& scene, State& st) {
     st.pair_order[static_cast<size_t>(st.patch_first_pair[static_cast<size_t>(k)] +
                                       st.patch_pair_count[static_cast<size_t>(k)]++)] = i;
   }
+}
 
-  // --- per patch: n, points (weighted means); identity in B's frame ----------
+// Per patch: n, points (weighted means); identity in B's frame.
+void patch_means(State& st, const int K) {
   for (int k = 0; k < K; ++k) {
     ContactPatch& patch = st.patches[static_cast<size_t>(k)];
     const int first = st.patch_first_pair[static_cast<size_t>(k)];
@@ -453,248 +466,324 @@ void cluster_pairs(const Scene& scene, State& st) {
     tr.p_b_local = world_from_b.inverse(Eigen::Isometry) * patch.p_b;
     tr.n_local = world_from_b.linear().transpose() * patch.n;
   }
-  int* match = st.cluster_order.data();  // scratch (>= K entries), the capping is done
-  match_tracks(scene, st, cos_max, match);
+}
 
-  // --- per patch: basis, triangles, window ------------------------------------
-  for (int k = 0; k < K; ++k) {
-    ContactPatch& patch = st.patches[static_cast<size_t>(k)];
-    PatchTrack& tr = st.next_tracks[static_cast<size_t>(k)];
-    const int b = patch.object_b;
-    const Model& B = scene.model(b);
-    const Eigen::Isometry3d world_from_b = st.poses[static_cast<size_t>(b)].iso();
-    const Eigen::Matrix3d rb = world_from_b.linear();
-    const Vec3& n = patch.n;
-    const PatchTrack* prev = match[k] >= 0 ? &st.tracks[static_cast<size_t>(match[k])] : nullptr;
-
-    // Tangent basis: the previous u (kept in B's frame) projected on the new plane.
-    Vec3 u = Vec3::Zero();
-    if (prev) {
-      const Vec3 u0 = rb * prev->u_local;
-      u = u0 - u0.dot(n) * n;
-      if (u.norm() < 0.1) u.setZero();  // n turned by > ~84 deg: start afresh
-    }
-    if (u.isZero()) {
-      int axis = 0;
-      double best = 2.0;
-      for (int a = 0; a < 3; ++a) {
-        const double c = std::abs(rb.col(a).dot(n));
-        if (c < best - 1e-12) {
-          best = c;
-          axis = a;
-        }
-      }
-      const Vec3 e = rb.col(axis);
-      u = e - e.dot(n) * n;
-    }
-    u.normalize();
-    const Vec3 v = n.cross(u);
-    patch.u = u;
-    patch.v = v;
-
-    // Triangles of the patch's pieces facing each other.
-    ++st.face_stamp;
-    if (st.face_stamp == 0) {  // wrapped: clear the marks (once every 2^32 patches)
-      std::fill(st.face_mark_a.begin(), st.face_mark_a.end(), 0u);
-      std::fill(st.face_mark_b.begin(), st.face_mark_b.end(), 0u);
-      std::fill(st.piece_mark_a.begin(), st.piece_mark_a.end(), 0u);
-      std::fill(st.piece_mark_b.begin(), st.piece_mark_b.end(), 0u);
-      std::fill(st.vertex_stamp_a.begin(), st.vertex_stamp_a.end(), 0u);
-      std::fill(st.vertex_stamp_b.begin(), st.vertex_stamp_b.end(), 0u);
-      st.face_stamp = 1;
-    }
-    const uint32_t stamp = st.face_stamp;
-    // Unique pieces of the patch, sorted.
-    int na = 0;
-    const int first = st.patch_first_pair[static_cast<size_t>(k)];
-    const int count = st.patch_pair_count[static_cast<size_t>(k)];
-    for (int s = 0; s < count; ++s) {
-      const PiecePair& p = st.pairs[static_cast<size_t>(st.pair_order[static_cast<size_t>(first + s)])];
-      if (st.piece_mark_a[static_cast<size_t>(p.piece_a)] != stamp) {
-        st.piece_mark_a[static_cast<size_t>(p.piece_a)] = stamp;
-        st.piece_list_a[static_cast<size_t>(na++)] = p.piece_a;
-      }
-    }
-    int nb = 0;
-    for (int s = 0; s < count; ++s) {
-      const PiecePair& p = st.pairs[static_cast<size_t>(st.pair_order[static_cast<size_t>(first + s)])];
-      if (st.piece_mark_b[static_cast<size_t>(p.piece_b)] != stamp) {
-        st.piece_mark_b[static_cast<size_t>(p.piece_b)] = stamp;
-        st.piece_list_b[static_cast<size_t>(nb++)] = p.piece_b;
-      }
-    }
-    std::sort(st.piece_list_a.begin(), st.piece_list_a.begin() + na);
-    std::sort(st.piece_list_b.begin(), st.piece_list_b.begin() + nb);
-    // Each side's faces are first culled against the other side's pieces
-    // (their box, taken into this side's frame), grown by the reach along n
-    // (below) plus the largest finite-difference displacement (one texel of
-    // a window no larger than that box, or the fixed steps).
-    const double tol = scene.tolerance(b);
-    const double reach_h = 2.0 * tol + (fopt.ang_step > 0 ? fopt.ang_step * ga.scale : 0.0);
-    {
-      const ModelGeometry& gb = world.geometry(b);
-      const Eigen::Isometry3d a_from_b = world_from_a.inverse(Eigen::Isometry) * world_from_b;
-      Vec3 cb, hb, ca_, ha;
-      pieces_box(gb, st.piece_list_b, nb, cb, hb);
-      pieces_box(ga, st.piece_list_a, na, ca_, ha);
-      const double grow_a = reach_h + fopt.lin_step + 2.0 * hb.maxCoeff() / (N - 4);
-      const double grow_b = reach_h + fopt.lin_step + 2.0 * ha.maxCoeff() / (N - 4);
-      const Vec3 region_a_c = a_from_b * cb;
-      const Vec3 region_a_h = a_from_b.linear().cwiseAbs() * hb + Vec3::Constant(grow_a);
-      const Vec3 region_b_c = a_from_b.inverse(Eigen::Isometry) * ca_;
-      const Vec3 region_b_h = a_from_b.linear().transpose().cwiseAbs() * ha + Vec3::Constant(grow_b);
-      // The mesh heights take every face in the region, at any angle
-      // (hrt/depth.h HeightMode::mesh): the others go to reach_a / reach_b.
-      const bool mesh = fopt.heights == HeightMode::mesh;
-      collect_faces(A, ga, world_from_a.linear(), n, st.piece_list_a, na, region_a_c, region_a_h, st.face_mark_a, stamp,
-                    patch.tris_a, mesh ? &patch.reach_a : nullptr);
-      collect_faces(B, gb, rb, -n, st.piece_list_b, nb, region_b_c, region_b_h, st.face_mark_b, stamp, patch.tris_b,
-                    mesh ? &patch.reach_b : nullptr);
-      if (!mesh) patch.reach_a.clear(), patch.reach_b.clear();
-      // No face of one side faces the other along n: n is edge-on to the
-      // surfaces in contact (frame.cpp refuses the patch).
-      patch.facing = !patch.tris_a.empty() && !patch.tris_b.empty();
-    }
-
-    // Window: (u, v) bounds, relative to the lattice anchor t_B, of the parts
-    // of A's and B's triangles that can come within reach of the other
-    // surface, intersected. Reach along n: a point of A lower than B's
-    // highest point (smallest h_B) minus `reach_h` cannot touch B (h_A - h_B
-    // < -reach_h everywhere), and likewise for B against A's highest point
-    // (largest h_A). reach_h = 2 x the pair tolerance (which already holds both
-    // textures' outward displacements) plus what a finite-difference rotation
-    // can lift a point. Triangles entirely out of reach are dropped.
-    const Vec3 anchor = world_from_b.translation();
-    const Projector proj_a(A, world_from_a, u, v, n, anchor, st.vertex_stamp_a.data(), st.vertex_proj_a.data(), stamp);
-    const Projector proj_b(B, world_from_b, u, v, n, anchor, st.vertex_stamp_b.data(), st.vertex_proj_b.data(), stamp);
-    double ha_max = -std::numeric_limits<double>::infinity();
-    double hb_min = std::numeric_limits<double>::infinity();
-    for (uint32_t f : patch.tris_a)
-      for (uint32_t vi : A.faces[f]) ha_max = std::max(ha_max, proj_a.vertex(vi)[2]);
-    for (uint32_t f : patch.tris_b)
-      for (uint32_t vi : B.faces[f]) hb_min = std::min(hb_min, proj_b.vertex(vi)[2]);
-    Rect ra, rb_rect, full, part;
-    // Full boxes of the kept triangles, by list position, for the final culling.
-    double* box_a = st.tri_box_a.data();
-    double* box_b = st.tri_box_b.data();
-    {
-      size_t w = 0;
-      for (uint32_t f : patch.tris_a) {
-        if (!proj_a.boxes(f, hb_min - reach_h, +1.0, full, part)) continue;
-        ra.add(part.lo_u, part.lo_v);
-        ra.add(part.hi_u, part.hi_v);
-        double* bx = box_a + 4 * w;
-        bx[0] = full.lo_u, bx[1] = full.lo_v, bx[2] = full.hi_u, bx[3] = full.hi_v;
-        patch.tris_a[w++] = f;
-      }
-      patch.tris_a.resize(w);  // shrinking: no allocation
-      w = 0;
-      for (uint32_t f : patch.tris_b) {
-        if (!proj_b.boxes(f, ha_max + reach_h, -1.0, full, part)) continue;
-        rb_rect.add(part.lo_u, part.lo_v);
-        rb_rect.add(part.hi_u, part.hi_v);
-        double* bx = box_b + 4 * w;
-        bx[0] = full.lo_u, bx[1] = full.lo_v, bx[2] = full.hi_u, bx[3] = full.hi_v;
-        patch.tris_b[w++] = f;
-      }
-      patch.tris_b.resize(w);
-    }
-    Rect d;
-    d.lo_u = std::max(ra.lo_u, rb_rect.lo_u);
-    d.hi_u = std::min(ra.hi_u, rb_rect.hi_u);
-    d.lo_v = std::max(ra.lo_v, rb_rect.lo_v);
-    d.hi_v = std::min(ra.hi_v, rb_rect.hi_v);
-    const Vec3 mid = 0.5 * (patch.p_a + patch.p_b);
-    if (d.empty()) {
-      // No overlap in projection (e.g. side-by-side pieces within the
-      // tolerance): a window around the contact point; Eq. 9 finds no texel
-      // covered by both and the patch gives no force.
-      ++st.warnings.empty_windows;
-      const double cu = u.dot(mid - anchor), cv = v.dot(mid - anchor);
-      d = Rect{};
-      d.add(cu, cv);
-    }
-    const double extent = std::max(d.hi_u - d.lo_u, d.hi_v - d.lo_v);
-    const double cu = 0.5 * (d.lo_u + d.hi_u), cv = 0.5 * (d.lo_v + d.hi_v);
-    const Vec3 center_w = anchor + cu * u + cv * v + (n.dot(mid - anchor)) * n;
-    // Padding: the largest displacement of a window point over the 11
-    // configurations. Fixed steps give a fixed part, automatic ones (0) move
-    // points by one grid texel (depth.h), i.e. a part proportional to the cell.
-    const double r_est = 1.1 * ((c_a - center_w).norm() + 0.7072 * extent);
-    double pad_fixed = 0.0;
-    int pad_cells = 0;
-    if (fopt.lin_step > 0)
-      pad_fixed = std::max(pad_fixed, fopt.lin_step);
-    else
-      pad_cells = 1;
-    if (fopt.ang_step > 0)
-      pad_fixed = std::max(pad_fixed, fopt.ang_step * r_est);
-    else
-      pad_cells = 1;
-    // Centring the window and snapping its origin down to the lattice costs
-    // up to one texel on either side, hence
-    //   N cell >= extent + 2 (pad_fixed + pad_cells cell) + 2 cell.
-    // With auto_resolution, N grows (up to the budget) until the texel is at
-    // most auto_cell_fraction x the shorter min_wavelength.
-    int Np = N;
-    double cell = 0.0, cell_min = 0.0;
-    for (;;) {
-      const double denom = static_cast<double>(Np - 2 - 2 * pad_cells);
-      cell_min = (extent + 2.0 * pad_fixed) / denom;
-      const double floor_cell = std::max(2.0 * scene.tolerance(b) / Np, 1e-9);
-      cell_min = std::max(cell_min, floor_cell);
-      cell = ladder_cell(cell_min);
-      if (prev && prev->cell >= cell_min && prev->cell <= cell_min * std::sqrt(2.0)) cell = prev->cell;
-      if (!(target_cell[b] > 0) || cell <= target_cell[b] || Np >= max_n) break;
-      // The texel shrinks about as 1 / N; one more step absorbs the ladder.
-      Np = std::min(max_n, std::max(Np + 1, static_cast<int>(std::ceil(Np * cell / target_cell[b])) + 1));
-    }
-    const double side = Np * cell;
-    const double lo_u = cell * std::floor((cu - 0.5 * side) / cell + 1e-9);
-    const double lo_v = cell * std::floor((cv - 0.5 * side) / cell + 1e-9);
-    patch.window.cell = cell;
-    patch.window.resolution = Np;
-    patch.window.origin = anchor + lo_u * u + lo_v * v + (n.dot(mid - anchor)) * n;
-
-    // Drop triangles that cannot reach the window in any configuration.
-    const double pad = pad_fixed + pad_cells * cell;
-    const double wlo_u = lo_u - pad, whi_u = lo_u + side + pad;
-    const double wlo_v = lo_v - pad, whi_v = lo_v + side + pad;
-    auto outside = [&](const double* bx) { return bx[2] < wlo_u || bx[0] > whi_u || bx[3] < wlo_v || bx[1] > whi_v; };
-    {
-      size_t w = 0;
-      for (size_t k = 0; k < patch.tris_a.size(); ++k)
-        if (!outside(box_a + 4 * k)) patch.tris_a[w++] = patch.tris_a[k];
-      patch.tris_a.resize(w);
-      w = 0;
-      for (size_t k = 0; k < patch.tris_b.size(); ++k)
-        if (!outside(box_b + 4 * k)) patch.tris_b[w++] = patch.tris_b[k];
-      patch.tris_b.resize(w);
-    }
-    // Nothing left on one side within reach of the other along n: no height
-    // field of this contact exists along n either.
-    patch.facing = patch.facing && !patch.tris_a.empty() && !patch.tris_b.empty();
-
-    // Results are filled by the force stage.
-    patch.delta = 0.0;
-    patch.grad = Vec6::Zero();
-    patch.force.setZero();
-    patch.torque.setZero();
-    patch.covered = false;
-
-    // Track for the next frame.
-    tr.u_local = rb.transpose() * u;
-    tr.cell = cell;
-    tr.side = side;
-    if (prev) {
-      tr.id = prev->id;
-      tr.warned = prev->warned;
-    } else {
-      tr.id = st.next_track_id++;
-      tr.warned = false;
-    }
-    st.patch_ids[static_cast<size_t>(k)] = tr.id;
+// Tangent basis: the previous u (kept in B's frame) projected on the new
+// plane, or for a new patch the axis of B's frame least aligned with n.
+Vec3 tangent_u(const PatchTrack* prev, const Eigen::Matrix3d& rb, const Vec3& n) {
+  Vec3 u = Vec3::Zero();
+  if (prev) {
+    const Vec3 u0 = rb * prev->u_local;
+    u = u0 - u0.dot(n) * n;
+    if (u.norm() < 0.1) u.setZero();  // n turned by > ~84 deg: start afresh
   }
+  if (u.isZero()) {
+    int axis = 0;
+    double best = 2.0;
+    for (int a = 0; a < 3; ++a) {
+      const double c = std::abs(rb.col(a).dot(n));
+      if (c < best - 1e-12) {
+        best = c;
+        axis = a;
+      }
+    }
+    const Vec3 e = rb.col(axis);
+    u = e - e.dot(n) * n;
+  }
+  u.normalize();
+  return u;
+}
+
+// The next stamp of the face, piece and vertex marks.
+uint32_t next_face_stamp(State& st) {
+  ++st.face_stamp;
+  if (st.face_stamp == 0) {  // wrapped: clear the marks (once every 2^32 patches)
+    std::fill(st.face_mark_a.begin(), st.face_mark_a.end(), 0u);
+    std::fill(st.face_mark_b.begin(), st.face_mark_b.end(), 0u);
+    std::fill(st.piece_mark_a.begin(), st.piece_mark_a.end(), 0u);
+    std::fill(st.piece_mark_b.begin(), st.piece_mark_b.end(), 0u);
+    std::fill(st.vertex_stamp_a.begin(), st.vertex_stamp_a.end(), 0u);
+    std::fill(st.vertex_stamp_b.begin(), st.vertex_stamp_b.end(), 0u);
+    st.face_stamp = 1;
+  }
+  return st.face_stamp;
+}
+
+// Triangles of patch k's pieces facing each other (patch.tris_a, tris_b,
+// reach_a, reach_b, facing).
+void patch_faces(const ClusterContext& cx, State& st, const int k, const Eigen::Isometry3d& world_from_b,
+                 const double reach_h, const uint32_t stamp) {
+  ContactPatch& patch = st.patches[static_cast<size_t>(k)];
+  const int b = patch.object_b;
+  const Vec3& n = patch.n;
+  // Unique pieces of the patch, sorted.
+  int na = 0;
+  const int first = st.patch_first_pair[static_cast<size_t>(k)];
+  const int count = st.patch_pair_count[static_cast<size_t>(k)];
+  for (int s = 0; s < count; ++s) {
+    const PiecePair& p = st.pairs[static_cast<size_t>(st.pair_order[static_cast<size_t>(first + s)])];
+    if (st.piece_mark_a[static_cast<size_t>(p.piece_a)] != stamp) {
+      st.piece_mark_a[static_cast<size_t>(p.piece_a)] = stamp;
+      st.piece_list_a[static_cast<size_t>(na++)] = p.piece_a;
+    }
+  }
+  int nb = 0;
+  for (int s = 0; s < count; ++s) {
+    const PiecePair& p = st.pairs[static_cast<size_t>(st.pair_order[static_cast<size_t>(first + s)])];
+    if (st.piece_mark_b[static_cast<size_t>(p.piece_b)] != stamp) {
+      st.piece_mark_b[static_cast<size_t>(p.piece_b)] = stamp;
+      st.piece_list_b[static_cast<size_t>(nb++)] = p.piece_b;
+    }
+  }
+  std::sort(st.piece_list_a.begin(), st.piece_list_a.begin() + na);
+  std::sort(st.piece_list_b.begin(), st.piece_list_b.begin() + nb);
+  // Each side's faces are first culled against the other side's pieces
+  // (their box, taken into this side's frame), grown by the reach along n
+  // (below) plus the largest finite-difference displacement (one texel of
+  // a window no larger than that box, or the fixed steps).
+  const ForceOptions& fopt = cx.fopt;
+  const int N = cx.N;
+  const ModelGeometry& gb = cx.world.geometry(b);
+  const Eigen::Isometry3d a_from_b = cx.world_from_a.inverse(Eigen::Isometry) * world_from_b;
+  Vec3 cb, hb, ca_, ha;
+  pieces_box(gb, st.piece_list_b, nb, cb, hb);
+  pieces_box(cx.ga, st.piece_list_a, na, ca_, ha);
+  const double grow_a = reach_h + fopt.lin_step + 2.0 * hb.maxCoeff() / (N - 4);
+  const double grow_b = reach_h + fopt.lin_step + 2.0 * ha.maxCoeff() / (N - 4);
+  const Vec3 region_a_c = a_from_b * cb;
+  const Vec3 region_a_h = a_from_b.linear().cwiseAbs() * hb + Vec3::Constant(grow_a);
+  const Vec3 region_b_c = a_from_b.inverse(Eigen::Isometry) * ca_;
+  const Vec3 region_b_h = a_from_b.linear().transpose().cwiseAbs() * ha + Vec3::Constant(grow_b);
+  // The mesh heights take every face in the region, at any angle
+  // (hrt/depth.h HeightMode::mesh): the others go to reach_a / reach_b.
+  const bool mesh = fopt.heights == HeightMode::mesh;
+  collect_faces(cx.A, cx.ga, cx.world_from_a.linear(), n, st.piece_list_a, na, region_a_c, region_a_h, st.face_mark_a,
+                stamp, patch.tris_a, mesh ? &patch.reach_a : nullptr);
+  collect_faces(cx.scene.model(b), gb, world_from_b.linear(), -n, st.piece_list_b, nb, region_b_c, region_b_h,
+                st.face_mark_b, stamp, patch.tris_b, mesh ? &patch.reach_b : nullptr);
+  if (!mesh) patch.reach_a.clear(), patch.reach_b.clear();
+  // No face of one side faces the other along n: n is edge-on to the
+  // surfaces in contact (frame.cpp refuses the patch).
+  patch.facing = !patch.tris_a.empty() && !patch.tris_b.empty();
+}
+
+// Window: (u, v) bounds, relative to the lattice anchor t_B, of the parts
+// of A's and B's triangles that can come within reach of the other
+// surface, intersected. Reach along n: a point of A lower than B's
+// highest point (smallest h_B) minus `reach_h` cannot touch B (h_A - h_B
+// < -reach_h everywhere), and likewise for B against A's highest point
+// (largest h_A). reach_h = 2 x the pair tolerance (which already holds both
+// textures' outward displacements) plus what a finite-difference rotation
+// can lift a point. Triangles entirely out of reach are dropped; the full
+// boxes of the kept ones, by list position, go to st.tri_box_a / tri_box_b
+// for the final culling.
+Rect reach_rect(const ClusterContext& cx, State& st, ContactPatch& patch, const Eigen::Isometry3d& world_from_b,
+                const Vec3& anchor, const double reach_h, const uint32_t stamp) {
+  const Model& A = cx.A;
+  const Model& B = cx.scene.model(patch.object_b);
+  const Vec3 &u = patch.u, &v = patch.v, &n = patch.n;
+  const Projector proj_a(A, cx.world_from_a, u, v, n, anchor, st.vertex_stamp_a.data(), st.vertex_proj_a.data(), stamp);
+  const Projector proj_b(B, world_from_b, u, v, n, anchor, st.vertex_stamp_b.data(), st.vertex_proj_b.data(), stamp);
+  double ha_max = -std::numeric_limits<double>::infinity();
+  double hb_min = std::numeric_limits<double>::infinity();
+  for (uint32_t f : patch.tris_a)
+    for (uint32_t vi : A.faces[f]) ha_max = std::max(ha_max, proj_a.vertex(vi)[2]);
+  for (uint32_t f : patch.tris_b)
+    for (uint32_t vi : B.faces[f]) hb_min = std::min(hb_min, proj_b.vertex(vi)[2]);
+  Rect ra, rb_rect, full, part;
+  double* box_a = st.tri_box_a.data();
+  double* box_b = st.tri_box_b.data();
+  size_t w = 0;
+  for (uint32_t f : patch.tris_a) {
+    if (!proj_a.boxes(f, hb_min - reach_h, +1.0, full, part)) continue;
+    ra.add(part.lo_u, part.lo_v);
+    ra.add(part.hi_u, part.hi_v);
+    double* bx = box_a + 4 * w;
+    bx[0] = full.lo_u, bx[1] = full.lo_v, bx[2] = full.hi_u, bx[3] = full.hi_v;
+    patch.tris_a[w++] = f;
+  }
+  patch.tris_a.resize(w);  // shrinking: no allocation
+  w = 0;
+  for (uint32_t f : patch.tris_b) {
+    if (!proj_b.boxes(f, ha_max + reach_h, -1.0, full, part)) continue;
+    rb_rect.add(part.lo_u, part.lo_v);
+    rb_rect.add(part.hi_u, part.hi_v);
+    double* bx = box_b + 4 * w;
+    bx[0] = full.lo_u, bx[1] = full.lo_v, bx[2] = full.hi_u, bx[3] = full.hi_v;
+    patch.tris_b[w++] = f;
+  }
+  patch.tris_b.resize(w);
+  Rect d;
+  d.lo_u = std::max(ra.lo_u, rb_rect.lo_u);
+  d.hi_u = std::min(ra.hi_u, rb_rect.hi_u);
+  d.lo_v = std::max(ra.lo_v, rb_rect.lo_v);
+  d.hi_v = std::min(ra.hi_v, rb_rect.hi_v);
+  return d;
+}
+
+// The window's lattice placement (relative to the anchor) and its pad.
+struct WindowPlace {
+  double cell = 0.0, side = 0.0, lo_u = 0.0, lo_v = 0.0, pad = 0.0;
+};
+
+// Sizes and places patch.window around the rectangle d (empty: around the
+// contact point), padded, on B's lattice.
+WindowPlace place_window(const ClusterContext& cx, State& st, ContactPatch& patch, const PatchTrack* prev,
+                         const Vec3& anchor, Rect d) {
+  const ForceOptions& fopt = cx.fopt;
+  const Vec3 &u = patch.u, &v = patch.v, &n = patch.n;
+  const int b = patch.object_b;
+  const double* target_cell = st.target_cell.data();
+  const Vec3 mid = 0.5 * (patch.p_a + patch.p_b);
+  if (d.empty()) {
+    // No overlap in projection (e.g. side-by-side pieces within the
+    // tolerance): a window around the contact point; Eq. 9 finds no texel
+    // covered by both and the patch gives no force.
+    ++st.warnings.empty_windows;
+    const double cu = u.dot(mid - anchor), cv = v.dot(mid - anchor);
+    d = Rect{};
+    d.add(cu, cv);
+  }
+  const double extent = std::max(d.hi_u - d.lo_u, d.hi_v - d.lo_v);
+  const double cu = 0.5 * (d.lo_u + d.hi_u), cv = 0.5 * (d.lo_v + d.hi_v);
+  const Vec3 center_w = anchor + cu * u + cv * v + (n.dot(mid - anchor)) * n;
+  // Padding: the largest displacement of a window point over the 11
+  // configurations. Fixed steps give a fixed part, automatic ones (0) move
+  // points by one grid texel (depth.h), i.e. a part proportional to the cell.
+  const double r_est = 1.1 * ((cx.c_a - center_w).norm() + 0.7072 * extent);
+  double pad_fixed = 0.0;
+  int pad_cells = 0;
+  if (fopt.lin_step > 0)
+    pad_fixed = std::max(pad_fixed, fopt.lin_step);
+  else
+    pad_cells = 1;
+  if (fopt.ang_step > 0)
+    pad_fixed = std::max(pad_fixed, fopt.ang_step * r_est);
+  else
+    pad_cells = 1;
+  // Centring the window and snapping its origin down to the lattice costs
+  // up to one texel on either side, hence
+  //   N cell >= extent + 2 (pad_fixed + pad_cells cell) + 2 cell.
+  // With auto_resolution, N grows (up to the budget) until the texel is at
+  // most auto_cell_fraction x the shorter min_wavelength.
+  const int max_n = cx.max_n;
+  int Np = cx.N;
+  double cell = 0.0, cell_min = 0.0;
+  for (;;) {
+    const double denom = static_cast<double>(Np - 2 - 2 * pad_cells);
+    cell_min = (extent + 2.0 * pad_fixed) / denom;
+    const double floor_cell = std::max(2.0 * cx.scene.tolerance(b) / Np, 1e-9);
+    cell_min = std::max(cell_min, floor_cell);
+    cell = ladder_cell(cell_min);
+    if (prev && prev->cell >= cell_min && prev->cell <= cell_min * std::sqrt(2.0)) cell = prev->cell;
+    if (!(target_cell[b] > 0) || cell <= target_cell[b] || Np >= max_n) break;
+    // The texel shrinks about as 1 / N; one more step absorbs the ladder.
+    Np = std::min(max_n, std::max(Np + 1, static_cast<int>(std::ceil(Np * cell / target_cell[b])) + 1));
+  }
+  WindowPlace wp;
+  wp.cell = cell;
+  wp.side = Np * cell;
+  wp.lo_u = cell * std::floor((cu - 0.5 * wp.side) / cell + 1e-9);
+  wp.lo_v = cell * std::floor((cv - 0.5 * wp.side) / cell + 1e-9);
+  wp.pad = pad_fixed + pad_cells * cell;
+  patch.window.cell = cell;
+  patch.window.resolution = Np;
+  patch.window.origin = anchor + wp.lo_u * u + wp.lo_v * v + (n.dot(mid - anchor)) * n;
+  return wp;
+}
+
+// Drop triangles that cannot reach the window in any configuration (their
+// full boxes from reach_rect).
+void cull_to_window(const State& st, ContactPatch& patch, const WindowPlace& wp) {
+  const double* box_a = st.tri_box_a.data();
+  const double* box_b = st.tri_box_b.data();
+  const double wlo_u = wp.lo_u - wp.pad, whi_u = wp.lo_u + wp.side + wp.pad;
+  const double wlo_v = wp.lo_v - wp.pad, whi_v = wp.lo_v + wp.side + wp.pad;
+  auto outside = [&](const double* bx) { return bx[2] < wlo_u || bx[0] > whi_u || bx[3] < wlo_v || bx[1] > whi_v; };
+  size_t w = 0;
+  for (size_t k = 0; k < patch.tris_a.size(); ++k)
+    if (!outside(box_a + 4 * k)) patch.tris_a[w++] = patch.tris_a[k];
+  patch.tris_a.resize(w);
+  w = 0;
+  for (size_t k = 0; k < patch.tris_b.size(); ++k)
+    if (!outside(box_b + 4 * k)) patch.tris_b[w++] = patch.tris_b[k];
+  patch.tris_b.resize(w);
+  // Nothing left on one side within reach of the other along n: no height
+  // field of this contact exists along n either.
+  patch.facing = patch.facing && !patch.tris_a.empty() && !patch.tris_b.empty();
+}
+
+// Per patch: basis, triangles, window; the track for the next frame.
+void shape_patch(const ClusterContext& cx, State& st, const int k, const PatchTrack* prev) {
+  ContactPatch& patch = st.patches[static_cast<size_t>(k)];
+  PatchTrack& tr = st.next_tracks[static_cast<size_t>(k)];
+  const int b = patch.object_b;
+  const Eigen::Isometry3d world_from_b = st.poses[static_cast<size_t>(b)].iso();
+  const Eigen::Matrix3d rb = world_from_b.linear();
+  const Vec3& n = patch.n;
+  const Vec3 u = tangent_u(prev, rb, n);
+  patch.u = u;
+  patch.v = n.cross(u);
+
+  const uint32_t stamp = next_face_stamp(st);
+  const double tol = cx.scene.tolerance(b);
+  const double reach_h = 2.0 * tol + (cx.fopt.ang_step > 0 ? cx.fopt.ang_step * cx.ga.scale : 0.0);
+  patch_faces(cx, st, k, world_from_b, reach_h, stamp);
+  const Vec3 anchor = world_from_b.translation();
+  const Rect d = reach_rect(cx, st, patch, world_from_b, anchor, reach_h, stamp);
+  const WindowPlace wp = place_window(cx, st, patch, prev, anchor, d);
+  cull_to_window(st, patch, wp);
+
+  // Results are filled by the force stage.
+  patch.delta = 0.0;
+  patch.grad = Vec6::Zero();
+  patch.force.setZero();
+  patch.torque.setZero();
+  patch.covered = false;
+
+  // Track for the next frame.
+  tr.u_local = rb.transpose() * u;
+  tr.cell = wp.cell;
+  tr.side = wp.side;
+  if (prev) {
+    tr.id = prev->id;
+    tr.warned = prev->warned;
+  } else {
+    tr.id = st.next_track_id++;
+    tr.warned = false;
+  }
+  st.patch_ids[static_cast<size_t>(k)] = tr.id;
+}
+
+}  // namespace
+
+void cluster_pairs(const Scene& scene, State& st) {
+  const int np = st.num_pairs;
+  const ClusterOptions& copt = scene.options().cluster;
+  const ForceOptions& fopt = scene.options().force;
+  const Model& A = scene.model(0);
+  const Eigen::Isometry3d world_from_a = st.poses[0].iso();
+  const int N = fopt.resolution;
+  const ClusterContext cx{scene,
+                          copt,
+                          fopt,
+                          std::cos(copt.max_normal_angle_deg * M_PI / 180.0),
+                          scene.world(),
+                          scene.world().geometry(0),
+                          A,
+                          world_from_a,
+                          world_from_a * A.mass.center_of_mass,
+                          N,
+                          copt.auto_resolution ? std::max(N, copt.max_resolution) : N};
+  set_target_cells(cx, st);
+  weigh_and_join(cx, st, np);
+  const int K = number_patches(cx, st, np);
+  group_pairs(st, np, K);
+  patch_means(st, K);
+  int* match = st.cluster_order.data();  // scratch (>= K entries), the capping is done
+  match_tracks(scene, st, cx.cos_max, match);
+  for (int k = 0; k < K; ++k)
+    shape_patch(cx, st, k, match[k] >= 0 ? &st.tracks[static_cast<size_t>(match[k])] : nullptr);
   std::swap(st.tracks, st.next_tracks);
   st.num_tracks = K;
 }

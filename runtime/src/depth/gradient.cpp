@@ -274,6 +274,93 @@ bool plan_depth(const Model& A, const Pose& pose_a, const Model& B, const Pose& 
   return true;
 }
 
+// The contact region (where the two overlap), for friction's centre of
+// pressure (hrt/session.h). One pass over configuration 0.
+static void contact_region(const double* ha0, const int S, const int border, const CoveredBox& box0, const double* hb,
+                           const int N, DepthGradient& out) {
+  double w_sum = 0, wi = 0, wj = 0;
+  int lo_i = N, lo_j = N, hi_i = -1, hi_j = -1, count_overlap = 0;
+  // Only configuration 0's covered box can overlap (row-major order kept).
+  const int jlo = std::max(0, box0.j0 - border), jhi = std::min(N, box0.j1 - border);
+  const int ilo = std::max(0, box0.i0 - border), ihi = std::min(N, box0.i1 - border);
+  for (int j = jlo; j < jhi; ++j) {
+    const double* ra = ha0 + static_cast<size_t>(j + border) * S + border;
+    const double* rb = hb + static_cast<size_t>(j) * N;
+    for (int i = ilo; i < ihi; ++i) {
+      const double d = ra[i] - rb[i];
+      if (!(d > 0)) continue;  // -inf (uncovered) and touching texels are no overlap
+      ++count_overlap;
+      w_sum += d;
+      wi += d * (i + 0.5);
+      wj += d * (j + 0.5);
+      lo_i = std::min(lo_i, i), hi_i = std::max(hi_i, i);
+      lo_j = std::min(lo_j, j), hi_j = std::max(hi_j, j);
+    }
+  }
+  if (count_overlap > 0 && w_sum > 0) {
+    out.region_texels = count_overlap;
+    out.region_center[0] = wi / w_sum;
+    out.region_center[1] = wj / w_sum;
+    out.region_lo[0] = lo_i, out.region_lo[1] = lo_j;
+    out.region_hi[0] = hi_i + 1, out.region_hi[1] = hi_j + 1;
+  }
+}
+
+// The shortcut (Sec. 5.2): the translations and the rotations about n as
+// shifts and rotations of configuration 0's heights; s: the linear step in
+// texels.
+static void shortcut_depths(const double* ha0, const int S, const int border, const CoveredBox& box0, const double* hb,
+                            const int N, const double s, const double cx, const double cy, const double dth,
+                            double* D) {
+  const double rs = std::round(s);
+  if (std::abs(s - rs) < 1e-9 && rs <= border) {
+    const int m = static_cast<int>(rs);
+    D[1] = shifted_depth(ha0, S, border, box0, hb, N, m, 0);
+    D[2] = shifted_depth(ha0, S, border, box0, hb, N, -m, 0);
+    D[3] = shifted_depth(ha0, S, border, box0, hb, N, 0, m);
+    D[4] = shifted_depth(ha0, S, border, box0, hb, N, 0, -m);
+  } else {
+    D[1] = fractional_shift_depth(ha0, S, border, hb, N, s, 0);
+    D[2] = fractional_shift_depth(ha0, S, border, hb, N, -s, 0);
+    D[3] = fractional_shift_depth(ha0, S, border, hb, N, 0, s);
+    D[4] = fractional_shift_depth(ha0, S, border, hb, N, 0, -s);
+  }
+  D[9] = rotated_depth(ha0, S, border, hb, N, cx, cy, dth);
+  D[10] = rotated_depth(ha0, S, border, hb, N, cx, cy, -dth);
+}
+
+// The depths of the rendered configurations (bufs[k] holds configuration
+// rendered[k]; k = 0 is configuration 0), whole-texel translations as shifts
+// of configuration 0 (seeded: those of `rendered`; the mesh mode's are not
+// in it).
+static void configuration_depths(const double* ha0, const int S, const int border, const CoveredBox& box0,
+                                 const double* hb, const int N, const bool seeded, const bool mesh_shift,
+                                 const int shift_m, double* const* bufs, const int* rendered, const int count,
+                                 double* D) {
+  // Seeded configurations are covered where configuration 0 is (their
+  // re-solves start from its seeds); the mesh mode's have their own boxes.
+  auto box_of = [&](const double* h) {
+    return seeded ? CoveredBox{box0.i0 - border, box0.i1 - border, box0.j0 - border, box0.j1 - border}
+                  : covered_box(h, N, -kInf);
+  };
+  // The mesh mode's whole-texel translations are not in `rendered`: shifts.
+  // (They were left uncovered before, which zeroed the gradient's u and v.)
+  if (mesh_shift)
+    for (int c = 1; c <= 4; ++c) {
+      const int di = c == 1 ? shift_m : c == 2 ? -shift_m : 0, dj = c == 3 ? shift_m : c == 4 ? -shift_m : 0;
+      D[c] = shifted_depth(ha0, S, border, box0, hb, N, di, dj);
+    }
+  for (int k = 1; k < count; ++k) {
+    const int c = rendered[k];
+    if (seeded && shift_m > 0 && c >= 1 && c <= 4) {
+      const int di = c == 1 ? shift_m : c == 2 ? -shift_m : 0, dj = c == 3 ? shift_m : c == 4 ? -shift_m : 0;
+      D[c] = shifted_depth(ha0, S, border, box0, hb, N, di, dj);
+    } else {
+      D[c] = shifted_depth(bufs[k], N, 0, box_of(bufs[k]), hb, N, 0, 0);
+    }
+  }
+}
+
 DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const Model& B, const Pose& pose_b,
                                      const ContactPatch& patch, const ForceOptions& opt, DepthScratch& scratch,
                                      TaskPool* pool) {
@@ -384,77 +471,12 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
   // re-solves start from its seeds); the mesh mode's have their own boxes.
   const CoveredBox box0 = false ? CoveredBox{scratch.seeds.i0, scratch.seeds.i1, scratch.seeds.j0, scratch.seeds.j1}
                                 : covered_box(ha0, S, -kInf);
-  auto box_of = [&](const double* h) {
-    return seeded ? CoveredBox{box0.i0 - border, box0.i1 - border, box0.j0 - border, box0.j1 - border}
-                  : covered_box(h, N, -kInf);
-  };
   D[0] = shifted_depth(ha0, S, border, box0, hb, N, 0, 0);
   if (D[0] == -kInf) return out;  // nothing covered by both: no contact
-  if (D[0] > 0) {
-    // The contact region (where the two overlap), for friction's centre of
-    // pressure (hrt/session.h). One pass over configuration 0.
-    double w_sum = 0, wi = 0, wj = 0;
-    int lo_i = N, lo_j = N, hi_i = -1, hi_j = -1, count_overlap = 0;
-    // Only configuration 0's covered box can overlap (row-major order kept).
-    const int jlo = std::max(0, box0.j0 - border), jhi = std::min(N, box0.j1 - border);
-    const int ilo = std::max(0, box0.i0 - border), ihi = std::min(N, box0.i1 - border);
-    for (int j = jlo; j < jhi; ++j) {
-      const double* ra = ha0 + static_cast<size_t>(j + border) * S + border;
-      const double* rb = hb + static_cast<size_t>(j) * N;
-      for (int i = ilo; i < ihi; ++i) {
-        const double d = ra[i] - rb[i];
-        if (!(d > 0)) continue;  // -inf (uncovered) and touching texels are no overlap
-        ++count_overlap;
-        w_sum += d;
-        wi += d * (i + 0.5);
-        wj += d * (j + 0.5);
-        lo_i = std::min(lo_i, i), hi_i = std::max(hi_i, i);
-        lo_j = std::min(lo_j, j), hi_j = std::max(hi_j, j);
-      }
-    }
-    if (count_overlap > 0 && w_sum > 0) {
-      out.region_texels = count_overlap;
-      out.region_center[0] = wi / w_sum;
-      out.region_center[1] = wj / w_sum;
-      out.region_lo[0] = lo_i, out.region_lo[1] = lo_j;
-      out.region_hi[0] = hi_i + 1, out.region_hi[1] = hi_j + 1;
-    }
-  }
-  // The mesh mode's whole-texel translations are not in `rendered`: shifts.
-  // (They were left uncovered before, which zeroed the gradient's u and v.)
-  if (mesh_shift)
-    for (int c = 1; c <= 4; ++c) {
-      const int di = c == 1 ? shift_m : c == 2 ? -shift_m : 0, dj = c == 3 ? shift_m : c == 4 ? -shift_m : 0;
-      D[c] = shifted_depth(ha0, S, border, box0, hb, N, di, dj);
-    }
-  for (int k = 1; k < count; ++k) {
-    const int c = rendered[k];
-    if (seeded && shift_m > 0 && c >= 1 && c <= 4) {
-      const int di = c == 1 ? shift_m : c == 2 ? -shift_m : 0, dj = c == 3 ? shift_m : c == 4 ? -shift_m : 0;
-      D[c] = shifted_depth(ha0, S, border, box0, hb, N, di, dj);
-    } else {
-      D[c] = shifted_depth(bufs[k], N, 0, box_of(bufs[k]), hb, N, 0, 0);
-    }
-  }
+  if (D[0] > 0) contact_region(ha0, S, border, box0, hb, N, out);
+  configuration_depths(ha0, S, border, box0, hb, N, seeded, mesh_shift, shift_m, bufs, rendered, count, D);
 
-  if (opt.shortcut) {
-    const double s = du / cell;  // texels
-    const double rs = std::round(s);
-    if (std::abs(s - rs) < 1e-9 && rs <= border) {
-      const int m = static_cast<int>(rs);
-      D[1] = shifted_depth(ha0, S, border, box0, hb, N, m, 0);
-      D[2] = shifted_depth(ha0, S, border, box0, hb, N, -m, 0);
-      D[3] = shifted_depth(ha0, S, border, box0, hb, N, 0, m);
-      D[4] = shifted_depth(ha0, S, border, box0, hb, N, 0, -m);
-    } else {
-      D[1] = fractional_shift_depth(ha0, S, border, hb, N, s, 0);
-      D[2] = fractional_shift_depth(ha0, S, border, hb, N, -s, 0);
-      D[3] = fractional_shift_depth(ha0, S, border, hb, N, 0, s);
-      D[4] = fractional_shift_depth(ha0, S, border, hb, N, 0, -s);
-    }
-    D[9] = rotated_depth(ha0, S, border, hb, N, cx, cy, dth);
-    D[10] = rotated_depth(ha0, S, border, hb, N, cx, cy, -dth);
-  }
+  if (opt.shortcut) shortcut_depths(ha0, S, border, box0, hb, N, du / cell, cx, cy, dth, D);
 
   finish_depth_gradient(out);
   return out;

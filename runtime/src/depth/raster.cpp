@@ -446,6 +446,82 @@ inline void splat_triangle(const Placement& pl, const MeshCorner& c0, const Mesh
   }
 }
 
+// Occluded faces (true: nothing to draw): where every texel the face can
+// reach already holds a height at least as extreme as any of its points, it
+// can change nothing
+// (the max is exact whatever the order; mesh_order draws the most extreme
+// faces first so that this test bites). Scanned only when the texels are
+// fewer than the face's quads.
+static bool face_occluded(const Placement& pl, const double* x, const double* y, const double* ax, const double* ay,
+                          const double R, const double hlo, const double hhi) {
+  const int S = pl.S;
+  const int i0 = std::max(0, static_cast<int>(std::ceil(std::min({x[0], x[1], x[2]}) - R - 0.5)));
+  const int i1 = std::min(S - 1, static_cast<int>(std::floor(std::max({x[0], x[1], x[2]}) + R + 0.5)));
+  const int j0 = std::max(0, static_cast<int>(std::ceil(std::min({y[0], y[1], y[2]}) - R - 0.5)));
+  const int j1 = std::min(S - 1, static_cast<int>(std::floor(std::max({y[0], y[1], y[2]}) + R + 0.5)));
+  if (i0 > i1 || j0 > j1) return true;  // reaches no texel: nothing to draw
+  const double area2 = (ax[1] - ax[0]) * (ay[2] - ay[0]) - (ax[2] - ax[0]) * (ay[1] - ay[0]);
+  const double texels = static_cast<double>(i1 - i0 + 1) * (j1 - j0 + 1);
+  if (texels < 0.5 * std::abs(area2)) {
+    bool occluded = true;
+    for (int j = j0; j <= j1 && occluded; ++j) {
+      const double* row = pl.out + static_cast<size_t>(j) * S;
+      for (int i = i0; i <= i1; ++i)
+        if (pl.keep_max ? row[i] < hhi : row[i] > hlo) {
+          occluded = false;
+          break;
+        }
+    }
+    if (occluded) return true;
+  }
+  return false;
+}
+
+// Block tests (SurfaceMap::Block): the box projected by its centre and
+// half-extents; a block passes when its box can reach the grid, the near
+// side of the cull, and a texel that holds less than the box's extreme.
+static bool block_passes(const Placement& pl, const SurfaceMap& sm, const int bi, const int bj) {
+  constexpr int B = SurfaceMap::kQuadBlock;
+  const int S = pl.S;
+  const bool mx = pl.keep_max;
+  const double cull = pl.cull;
+  const bool cull_on = std::isfinite(cull);
+  const SurfaceMap::Block& blk = sm.blocks[static_cast<size_t>(bj) * sm.blocks_w + bi];
+  if (blk.lo.x() > blk.hi.x()) return false;  // no usable quad
+  const Vec3 c = 0.5 * (blk.lo.cast<double>() + blk.hi.cast<double>());
+  const Vec3 e = 0.5 * (blk.hi.cast<double>() - blk.lo.cast<double>());
+  const double xc = pl.gx.dot(c) + pl.ox, yc = pl.gy.dot(c) + pl.oy, hc = pl.nobj.dot(c) + pl.oh;
+  const double xe = pl.gx.cwiseAbs().dot(e), ye = pl.gy.cwiseAbs().dot(e), he = pl.nobj.cwiseAbs().dot(e);
+  if (xc + xe < -0.5 || xc - xe > S - 0.5 || yc + ye < -0.5 || yc - ye > S - 0.5) return false;
+  const double hx = mx ? hc + he : hc - he;  // the box's extreme
+  if (cull_on && (mx ? hx < cull : hx > cull)) return false;
+  const int i0 = std::max(0, static_cast<int>(std::ceil(xc - xe - 0.5)));
+  const int i1 = std::min(S - 1, static_cast<int>(std::floor(xc + xe + 0.5)));
+  const int j0 = std::max(0, static_cast<int>(std::ceil(yc - ye - 0.5)));
+  const int j1 = std::min(S - 1, static_cast<int>(std::floor(yc + ye + 0.5)));
+  if ((i1 - i0 + 1) * (j1 - j0 + 1) > B * B) return true;  // not worth the scan
+  for (int j = j0; j <= j1; ++j) {
+    const double* row = pl.out + static_cast<size_t>(j) * S;
+    for (int i = i0; i <= i1; ++i)
+      if (mx ? row[i] < hx : row[i] > hx) return true;
+  }
+  return false;  // occluded
+}
+
+// Projects atlas texels (i0..i1, j) into out[i - qi0] (grid coordinates and height).
+static void project_texels(const Placement& pl, const float* rgba, const size_t stride, const int qi0, const int j,
+                           const int i0, const int i1, MeshCorner* out) {
+  const float* t = rgba + static_cast<size_t>(j) * stride + static_cast<size_t>(i0) * 4;
+  for (int i = i0; i <= i1; ++i, t += 4) {
+    const double px = t[0], py = t[1], pz = t[2];
+    MeshCorner& c = out[i - qi0];
+    c.x = pl.gx[0] * px + pl.gx[1] * py + pl.gx[2] * pz + pl.ox;
+    c.y = pl.gy[0] * px + pl.gy[1] * py + pl.gy[2] * pz + pl.oy;
+    c.h = pl.nobj[0] * px + pl.nobj[1] * py + pl.nobj[2] * pz + pl.oh;
+    c.ok = std::isfinite(c.x) && std::isfinite(c.y) && std::isfinite(c.h);
+  }
+}
+
 // HeightMode::mesh for coarse face f: every usable atlas quad whose centre
 // lies within one atlas texel of the face's UV triangle (the face's own
 // texels and the seam's: neighbouring faces of a chart share quads across
@@ -462,32 +538,7 @@ void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const
   MeshRows rows_of;
   if (!rows_of.setup(M, f, pl.nobj, pl.oh, S, pl.cell, pl.keep_max, pl.cull, x, y, ax, ay)) return;
   const double R = rows_of.R, hlo = rows_of.hlo, hhi = rows_of.hhi;
-  // Occluded faces: where every texel the face can reach already holds a
-  // height at least as extreme as any of its points, it can change nothing
-  // (the max is exact whatever the order; mesh_order draws the most extreme
-  // faces first so that this test bites). Scanned only when the texels are
-  // fewer than the face's quads.
-  {
-    const int i0 = std::max(0, static_cast<int>(std::ceil(std::min({x[0], x[1], x[2]}) - R - 0.5)));
-    const int i1 = std::min(S - 1, static_cast<int>(std::floor(std::max({x[0], x[1], x[2]}) + R + 0.5)));
-    const int j0 = std::max(0, static_cast<int>(std::ceil(std::min({y[0], y[1], y[2]}) - R - 0.5)));
-    const int j1 = std::min(S - 1, static_cast<int>(std::floor(std::max({y[0], y[1], y[2]}) + R + 0.5)));
-    if (i0 > i1 || j0 > j1) return;
-    const double area2 = (ax[1] - ax[0]) * (ay[2] - ay[0]) - (ax[2] - ax[0]) * (ay[1] - ay[0]);
-    const double texels = static_cast<double>(i1 - i0 + 1) * (j1 - j0 + 1);
-    if (texels < 0.5 * std::abs(area2)) {
-      bool occluded = true;
-      for (int j = j0; j <= j1 && occluded; ++j) {
-        const double* row = pl.out + static_cast<size_t>(j) * S;
-        for (int i = i0; i <= i1; ++i)
-          if (pl.keep_max ? row[i] < hhi : row[i] > hlo) {
-            occluded = false;
-            break;
-          }
-      }
-      if (occluded) return;
-    }
-  }
+  if (face_occluded(pl, x, y, ax, ay, R, hlo, hhi)) return;
   const Atlas& at = M.atlas;
   const int W = at.width;
   const int qi0 = rows_of.qi0, qi1 = rows_of.qi1, qj0 = rows_of.qj0, qj1 = rows_of.qj1;
@@ -504,17 +555,7 @@ void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const
   int top_row = -1, top_lo = 1, top_hi = 0, bot_row = -1, bot_lo = 1, bot_hi = 0;
   const float* rgba = at.rgba.data();
   const size_t stride = static_cast<size_t>(W) * 4;
-  auto project = [&](int j, int i0, int i1, MeshCorner* out) {
-    const float* t = rgba + static_cast<size_t>(j) * stride + static_cast<size_t>(i0) * 4;
-    for (int i = i0; i <= i1; ++i, t += 4) {
-      const double px = t[0], py = t[1], pz = t[2];
-      MeshCorner& c = out[i - qi0];
-      c.x = pl.gx[0] * px + pl.gx[1] * py + pl.gx[2] * pz + pl.ox;
-      c.y = pl.gy[0] * px + pl.gy[1] * py + pl.gy[2] * pz + pl.oy;
-      c.h = pl.nobj[0] * px + pl.nobj[1] * py + pl.nobj[2] * pz + pl.oh;
-      c.ok = std::isfinite(c.x) && std::isfinite(c.y) && std::isfinite(c.h);
-    }
-  };
+  auto project = [&](int j, int i0, int i1, MeshCorner* out) { project_texels(pl, rgba, stride, qi0, j, i0, i1, out); };
   // Makes row buffer `buf` (holding texel row `row` over [lo, hi]) hold
   // texel row j over at least [a, b].
   auto ensure = [&](MeshCorner* buf, int& row, int& lo, int& hi, int j, int a, int b) {
@@ -530,33 +571,8 @@ void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const
   const bool mx = pl.keep_max;
   const double cull = pl.cull;
   const bool cull_on = std::isfinite(cull);
-  // Block tests (SurfaceMap::Block): the box projected by its centre and
-  // half-extents; a block passes when its box can reach the grid, the near
-  // side of the cull, and a texel that holds less than the box's extreme.
   constexpr int B = SurfaceMap::kQuadBlock;
   const SurfaceMap& sm = *pl.surface;
-  auto block_passes = [&](int bi, int bj) {
-    const SurfaceMap::Block& blk = sm.blocks[static_cast<size_t>(bj) * sm.blocks_w + bi];
-    if (blk.lo.x() > blk.hi.x()) return false;  // no usable quad
-    const Vec3 c = 0.5 * (blk.lo.cast<double>() + blk.hi.cast<double>());
-    const Vec3 e = 0.5 * (blk.hi.cast<double>() - blk.lo.cast<double>());
-    const double xc = pl.gx.dot(c) + pl.ox, yc = pl.gy.dot(c) + pl.oy, hc = pl.nobj.dot(c) + pl.oh;
-    const double xe = pl.gx.cwiseAbs().dot(e), ye = pl.gy.cwiseAbs().dot(e), he = pl.nobj.cwiseAbs().dot(e);
-    if (xc + xe < -0.5 || xc - xe > S - 0.5 || yc + ye < -0.5 || yc - ye > S - 0.5) return false;
-    const double hx = mx ? hc + he : hc - he;  // the box's extreme
-    if (cull_on && (mx ? hx < cull : hx > cull)) return false;
-    const int i0 = std::max(0, static_cast<int>(std::ceil(xc - xe - 0.5)));
-    const int i1 = std::min(S - 1, static_cast<int>(std::floor(xc + xe + 0.5)));
-    const int j0 = std::max(0, static_cast<int>(std::ceil(yc - ye - 0.5)));
-    const int j1 = std::min(S - 1, static_cast<int>(std::floor(yc + ye + 0.5)));
-    if ((i1 - i0 + 1) * (j1 - j0 + 1) > B * B) return true;  // not worth the scan
-    for (int j = j0; j <= j1; ++j) {
-      const double* row = pl.out + static_cast<size_t>(j) * S;
-      for (int i = i0; i <= i1; ++i)
-        if (mx ? row[i] < hx : row[i] > hx) return true;
-    }
-    return false;  // occluded
-  };
   thread_local std::vector<int> rlo, rhi;
   thread_local std::vector<uint8_t> pass;
   for (int bj = qj0 / B; bj <= qj1 / B; ++bj) {
@@ -571,7 +587,7 @@ void raster_triangle_mesh(const Model& M, uint32_t f, const Placement& pl, const
     const int bi0 = ulo / B, bi1 = uhi / B;
     pass.assign(static_cast<size_t>(bi1 - bi0 + 1), 0);
     bool any = false;
-    for (int bi = bi0; bi <= bi1; ++bi) any |= (pass[bi - bi0] = block_passes(bi, bj)) != 0;
+    for (int bi = bi0; bi <= bi1; ++bi) any |= (pass[bi - bi0] = block_passes(pl, sm, bi, bj)) != 0;
     if (!any) continue;
     for (int j = ja; j <= jb; ++j) {
       const int lo_j = rlo[j - ja], hi_j = rhi[j - ja];

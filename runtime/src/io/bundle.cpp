@@ -285,200 +285,243 @@ void footprint(const std::array<Vec2f, 3>& uv, int W, int H, uint64_t& work, Vis
   }
 }
 
-void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const std::string& label) {
-  auto fail = [&](const std::string& what) { throw BundleError(BundleErrorClass::atlas, label + ": " + what); };
-  const Atlas& a = model.atlas;
-  const int W = a.width, H = a.height;
-  const size_t npx = static_cast<size_t>(W) * H;
-  auto at = [W](int i, int j) { return static_cast<size_t>(j) * W + i; };
-  auto texel_str = [](int i, int j) { return "texel (" + std::to_string(i) + ", " + std::to_string(j) + ")"; };
-
-  // Coverage values (finite ones) must be 0 or 1.
-  std::vector<uint8_t> finite(npx), covered(npx);
-  First bad_a;
-  for (int j = 0; j < H; ++j) {
-    for (int i = 0; i < W; ++i) {
-      const float* t = a.texel(i, j);
-      finite[at(i, j)] = std::isfinite(t[0]) && std::isfinite(t[1]) && std::isfinite(t[2]) && std::isfinite(t[3]);
-      covered[at(i, j)] = finite[at(i, j)] && t[3] == 1.0f;
-      if (std::isfinite(t[3]) && t[3] != 0.0f && t[3] != 1.0f) bad_a.add(at(i, j));
-    }
-  }
-  if (bad_a) {
-    const int i = static_cast<int>(bad_a.first % W), j = static_cast<int>(bad_a.first / W);
-    fail(count_of(bad_a.count, "texel") + " with coverage A other than 0 or 1 (first: " + texel_str(i, j) +
-         " has A = " + fmt("%.9g", a.texel(i, j)[3]) + ")");
-  }
-  // filled = within Chebyshev distance `gutter` of a covered texel (separable
-  // box maximum: rows, then columns, with running counts).
-  const int g = info.gutter;
-  std::vector<uint8_t> rows(npx), filled(npx);
-  for (int j = 0; j < H; ++j) {
-    int cnt = 0;
-    for (int i = 0; i < std::min(g, W); ++i) cnt += covered[at(i, j)];
-    for (int i = 0; i < W; ++i) {
-      if (i + g < W) cnt += covered[at(i + g, j)];
-      if (i - g - 1 >= 0) cnt -= covered[at(i - g - 1, j)];
-      rows[at(i, j)] = cnt > 0;
-    }
-  }
-  // Columns, row by row (cache-friendly): cnt[i] counts rows[.][i] over rows j-g..j+g.
-  std::vector<int> cnt(static_cast<size_t>(W), 0);
-  for (int j = 0; j < std::min(g, H); ++j)
-    for (int i = 0; i < W; ++i) cnt[i] += rows[at(i, j)];
-  for (int j = 0; j < H; ++j) {
-    if (j + g < H)
-      for (int i = 0; i < W; ++i) cnt[i] += rows[at(i, j + g)];
-    if (j - g - 1 >= 0)
-      for (int i = 0; i < W; ++i) cnt[i] -= rows[at(i, j - g - 1)];
-    for (int i = 0; i < W; ++i) filled[at(i, j)] = cnt[i] > 0;
-  }
+// check_atlas_texels' passes over one atlas, in the order of their messages.
+struct AtlasCheck {
+  const Model& model;
+  const Atlas& a;
+  const std::string& label;
+  const int W, H;
+  const size_t npx;
   // Work bound of the two per-triangle passes below (rows and candidate
   // texels examined). A valid atlas's UV triangles do not overlap, so their
   // footprints cover the atlas about once (1.2-2.8 W H on the golden and
   // benchmark bundles, counting whole bounding boxes): overlapping copies or
   // slivers crossing the atlas, which no baker writes, are refused before
   // they cost W H per triangle.
-  const uint64_t work_limit = kWorkPerTexel * npx + kWorkPerTriangle * model.faces.size();
+  const uint64_t work_limit;
   uint64_t work = 0;
-  auto check_work = [&]() {
+  std::vector<uint8_t> finite, covered, filled;
+
+  AtlasCheck(const Model& m, const std::string& l)
+      : model(m),
+        a(m.atlas),
+        label(l),
+        W(m.atlas.width),
+        H(m.atlas.height),
+        npx(static_cast<size_t>(W) * H),
+        work_limit(kWorkPerTexel * npx + kWorkPerTriangle * m.faces.size()),
+        finite(npx),
+        covered(npx),
+        filled(npx) {}
+
+  [[noreturn]] void fail(const std::string& what) const {
+    throw BundleError(BundleErrorClass::atlas, label + ": " + what);
+  }
+  size_t at(int i, int j) const { return static_cast<size_t>(j) * W + i; }
+  static std::string texel_str(int i, int j) { return "texel (" + std::to_string(i) + ", " + std::to_string(j) + ")"; }
+  void check_work() const {
     if (work > work_limit) {
       fail("the UV triangles need more than " + std::to_string(work_limit) + " texel tests (" +
            std::to_string(kWorkPerTexel) + " per texel of the atlas + " + std::to_string(kWorkPerTriangle) +
            " per triangle): UV triangles overlap or are slivers across the atlas");
     }
-  };
-  // Footprints of the UV triangles: every texel read must be finite and filled.
-  std::vector<uint8_t> read(npx, 0);
-  First nonfinite_tris, unfilled_tris;
-  std::string nonfinite_example, unfilled_example;
-  for (size_t f = 0; f < model.faces.size(); ++f) {
-    size_t nonfinite = 0, unfilled = 0;
-    int ni = 0, nj = 0, ui = 0, uj = 0;
-    footprint(model.uvs[f], W, H, work, [&](int i, int j) {
-      const size_t k = at(i, j);
-      read[k] = 1;
-      if (!finite[k] && nonfinite++ == 0) ni = i, nj = j;
-      if (finite[k] && !filled[k] && unfilled++ == 0) ui = i, uj = j;
-    });
-    if (nonfinite) {
-      if (!nonfinite_tris)
-        nonfinite_example = "triangle " + s(f) + " reads " + s(nonfinite) + ", e.g. " + texel_str(ni, nj);
-      nonfinite_tris.add(f);
+  }
+
+  // Coverage values (finite ones) must be 0 or 1.
+  void coverage_values() {
+    First bad_a;
+    for (int j = 0; j < H; ++j) {
+      for (int i = 0; i < W; ++i) {
+        const float* t = a.texel(i, j);
+        finite[at(i, j)] = std::isfinite(t[0]) && std::isfinite(t[1]) && std::isfinite(t[2]) && std::isfinite(t[3]);
+        covered[at(i, j)] = finite[at(i, j)] && t[3] == 1.0f;
+        if (std::isfinite(t[3]) && t[3] != 0.0f && t[3] != 1.0f) bad_a.add(at(i, j));
+      }
     }
-    if (unfilled) {
-      if (!unfilled_tris)
-        unfilled_example = "triangle " + s(f) + " reads " + s(unfilled) + ", e.g. " + texel_str(ui, uj);
-      unfilled_tris.add(f);
+    if (bad_a) {
+      const int i = static_cast<int>(bad_a.first % W), j = static_cast<int>(bad_a.first / W);
+      fail(count_of(bad_a.count, "texel") + " with coverage A other than 0 or 1 (first: " + texel_str(i, j) +
+           " has A = " + fmt("%.9g", a.texel(i, j)[3]) + ")");
     }
-    check_work();
   }
-  if (nonfinite_tris) {
-    fail("bilinear lookups inside " + count_of(nonfinite_tris.count, "UV triangle") +
-         " read non-finite texels: " + nonfinite_example);
-  }
-  if (unfilled_tris) {
-    fail("bilinear lookups inside " + count_of(unfilled_tris.count, "UV triangle") +
-         " read texels that are neither covered nor within the gutter (" + std::to_string(g) +
-         ") of a covered texel: " + unfilled_example);
-  }
-  First stray;
-  for (size_t k = 0; k < npx; ++k)
-    if (!finite[k] && !read[k]) stray.add(k);
-  if (stray) {
-    fail(count_of(stray.count, "non-finite texel") + " outside every UV triangle's footprint (first: " +
-         texel_str(static_cast<int>(stray.first % W), static_cast<int>(stray.first / W)) +
-         "); unused texels must hold 0");
-  }
-  First far;
-  for (int j = 0; j < H; ++j)
-    for (int i = 0; i < W; ++i) {
-      const float* t = a.texel(i, j);
-      if (finite[at(i, j)] && far3({t[0], t[1], t[2]})) far.add(at(i, j));
+
+  // filled = within Chebyshev distance `gutter` of a covered texel (separable
+  // box maximum: rows, then columns, with running counts).
+  void fill(const int g) {
+    std::vector<uint8_t> rows(npx);
+    for (int j = 0; j < H; ++j) {
+      int cnt = 0;
+      for (int i = 0; i < std::min(g, W); ++i) cnt += covered[at(i, j)];
+      for (int i = 0; i < W; ++i) {
+        if (i + g < W) cnt += covered[at(i + g, j)];
+        if (i - g - 1 >= 0) cnt -= covered[at(i - g - 1, j)];
+        rows[at(i, j)] = cnt > 0;
+      }
     }
-  if (far) {
-    fail(count_of(far.count, "texel") + " with a position farther than 10000 m from the origin along an axis (first: " +
-         texel_str(static_cast<int>(far.first % W), static_cast<int>(far.first / W)) + ")");
+    // Columns, row by row (cache-friendly): cnt[i] counts rows[.][i] over rows j-g..j+g.
+    std::vector<int> cnt(static_cast<size_t>(W), 0);
+    for (int j = 0; j < std::min(g, H); ++j)
+      for (int i = 0; i < W; ++i) cnt[i] += rows[at(i, j)];
+    for (int j = 0; j < H; ++j) {
+      if (j + g < H)
+        for (int i = 0; i < W; ++i) cnt[i] += rows[at(i, j + g)];
+      if (j - g - 1 >= 0)
+        for (int i = 0; i < W; ++i) cnt[i] -= rows[at(i, j - g - 1)];
+      for (int i = 0; i < W; ++i) filled[at(i, j)] = cnt[i] > 0;
+    }
+  }
+
+  // Footprints of the UV triangles: every texel read must be finite and
+  // filled; non-finite texels only where none is read; positions near the origin.
+  void footprints(const int g) {
+    std::vector<uint8_t> read(npx, 0);
+    First nonfinite_tris, unfilled_tris;
+    std::string nonfinite_example, unfilled_example;
+    for (size_t f = 0; f < model.faces.size(); ++f) {
+      size_t nonfinite = 0, unfilled = 0;
+      int ni = 0, nj = 0, ui = 0, uj = 0;
+      footprint(model.uvs[f], W, H, work, [&](int i, int j) {
+        const size_t k = at(i, j);
+        read[k] = 1;
+        if (!finite[k] && nonfinite++ == 0) ni = i, nj = j;
+        if (finite[k] && !filled[k] && unfilled++ == 0) ui = i, uj = j;
+      });
+      if (nonfinite) {
+        if (!nonfinite_tris)
+          nonfinite_example = "triangle " + s(f) + " reads " + s(nonfinite) + ", e.g. " + texel_str(ni, nj);
+        nonfinite_tris.add(f);
+      }
+      if (unfilled) {
+        if (!unfilled_tris)
+          unfilled_example = "triangle " + s(f) + " reads " + s(unfilled) + ", e.g. " + texel_str(ui, uj);
+        unfilled_tris.add(f);
+      }
+      check_work();
+    }
+    if (nonfinite_tris) {
+      fail("bilinear lookups inside " + count_of(nonfinite_tris.count, "UV triangle") +
+           " read non-finite texels: " + nonfinite_example);
+    }
+    if (unfilled_tris) {
+      fail("bilinear lookups inside " + count_of(unfilled_tris.count, "UV triangle") +
+           " read texels that are neither covered nor within the gutter (" + std::to_string(g) +
+           ") of a covered texel: " + unfilled_example);
+    }
+    First stray;
+    for (size_t k = 0; k < npx; ++k)
+      if (!finite[k] && !read[k]) stray.add(k);
+    if (stray) {
+      fail(count_of(stray.count, "non-finite texel") + " outside every UV triangle's footprint (first: " +
+           texel_str(static_cast<int>(stray.first % W), static_cast<int>(stray.first / W)) +
+           "); unused texels must hold 0");
+    }
+    First far;
+    for (int j = 0; j < H; ++j)
+      for (int i = 0; i < W; ++i) {
+        const float* t = a.texel(i, j);
+        if (finite[at(i, j)] && far3({t[0], t[1], t[2]})) far.add(at(i, j));
+      }
+    if (far) {
+      fail(count_of(far.count, "texel") +
+           " with a position farther than 10000 m from the origin along an axis (first: " +
+           texel_str(static_cast<int>(far.first % W), static_cast<int>(far.first / W)) + ")");
+    }
   }
 
   // Coverage against the UVs (the spec: A = 1 exactly where the texel centre
   // lies inside a UV triangle). Texel (i, j) has its centre at x = i + 0.5,
   // y = j + 0.5 in the frame x = u W, y = (1 - v) H.
-  std::vector<uint8_t>& near = rows;  // reuse: 1 = centre inside or within the margin of some triangle
-  std::fill(near.begin(), near.end(), 0);
-  for (size_t f = 0; f < model.faces.size(); ++f) {
-    double px[3], py[3];
-    for (int k = 0; k < 3; ++k) {
-      px[k] = static_cast<double>(model.uvs[f][k].x()) * W;
-      py[k] = (1.0 - static_cast<double>(model.uvs[f][k].y())) * H;
-    }
-    const double area2 = (px[1] - px[0]) * (py[2] - py[0]) - (px[2] - px[0]) * (py[1] - py[0]);
-    if (area2 == 0.0) continue;  // a zero-area UV triangle contains no texel centre
-    const double sgn = area2 > 0 ? 1.0 : -1.0;
-    double ex[3], ey[3], el[3];
-    for (int k = 0; k < 3; ++k) {
-      ex[k] = px[(k + 1) % 3] - px[k];
-      ey[k] = py[(k + 1) % 3] - py[k];
-      el[k] = std::hypot(ex[k], ey[k]);
-    }
-    const double x0 = std::min({px[0], px[1], px[2]}) - kCoverageMargin,
-                 x1 = std::max({px[0], px[1], px[2]}) + kCoverageMargin;
-    const double y0 = std::min({py[0], py[1], py[2]}) - kCoverageMargin,
-                 y1 = std::max({py[0], py[1], py[2]}) + kCoverageMargin;
-    const int i0 = std::max(0, static_cast<int>(std::ceil(x0 - 0.5))),
-              i1 = std::min(W - 1, static_cast<int>(std::floor(x1 - 0.5)));
-    const int j0 = std::max(0, static_cast<int>(std::ceil(y0 - 0.5))),
-              j1 = std::min(H - 1, static_cast<int>(std::floor(y1 - 0.5)));
-    for (int j = j0; j <= j1; ++j) {
-      const double cy = j + 0.5;
-      // Candidates of this row: the centres cx where each edge's signed
-      // distance is >= -margin (a linear bound on cx per edge, widened by
-      // kSpanPad), so the work is the triangle's rows plus its texels, not its
-      // bounding box; the exact test below decides as before.
-      double lo = i0 + 0.5, hi = i1 + 0.5;
-      for (int k = 0; k < 3 && lo <= hi; ++k) {
-        // sgn (ex (cy - py) - ey (cx - px)) >= -margin el  <=>  a (cx - px) >= b
-        const double a = -sgn * ey[k], b = -kCoverageMargin * el[k] - sgn * ex[k] * (cy - py[k]);
-        if (a > 0)
-          lo = std::max(lo, px[k] + b / a - kSpanPad);
-        else if (a < 0)
-          hi = std::min(hi, px[k] + b / a + kSpanPad);
-        else if (b > kSpanPad * el[k])
-          hi = lo - 1;  // parallel edge, row wholly outside
+  void coverage_against_uvs() {
+    std::vector<uint8_t> near(npx, 0);  // 1 = centre inside or within the margin of some triangle
+    for (size_t f = 0; f < model.faces.size(); ++f) {
+      double px[3], py[3];
+      for (int k = 0; k < 3; ++k) {
+        px[k] = static_cast<double>(model.uvs[f][k].x()) * W;
+        py[k] = (1.0 - static_cast<double>(model.uvs[f][k].y())) * H;
       }
-      ++work;
-      if (!(lo <= hi)) continue;
-      const int ia = std::max(i0, static_cast<int>(std::ceil(lo - 0.5)));
-      const int ib = std::min(i1, static_cast<int>(std::floor(hi - 0.5)));
-      if (ib >= ia) work += static_cast<uint64_t>(ib - ia + 1);
-      for (int i = ia; i <= ib; ++i) {
-        const double cx = i + 0.5;
-        double d = HUGE_VAL;  // signed distance (texels) of the centre inside the nearest edge
-        for (int k = 0; k < 3; ++k) d = std::min(d, sgn * (ex[k] * (cy - py[k]) - ey[k] * (cx - px[k])) / el[k]);
-        if (d < -kCoverageMargin) continue;
-        near[at(i, j)] = 1;
-        if (d > kCoverageMargin && a.texel(i, j)[3] != 1.0f) {
-          fail(texel_str(i, j) + " has its centre inside the UV triangle of coarse face " + s(f) +
-               " but coverage A = " + fmt("%.9g", a.texel(i, j)[3]) + " (must be 1)");
+      const double area2 = (px[1] - px[0]) * (py[2] - py[0]) - (px[2] - px[0]) * (py[1] - py[0]);
+      if (area2 == 0.0) continue;  // a zero-area UV triangle contains no texel centre
+      const double sgn = area2 > 0 ? 1.0 : -1.0;
+      double ex[3], ey[3], el[3];
+      for (int k = 0; k < 3; ++k) {
+        ex[k] = px[(k + 1) % 3] - px[k];
+        ey[k] = py[(k + 1) % 3] - py[k];
+        el[k] = std::hypot(ex[k], ey[k]);
+      }
+      const double x0 = std::min({px[0], px[1], px[2]}) - kCoverageMargin,
+                   x1 = std::max({px[0], px[1], px[2]}) + kCoverageMargin;
+      const double y0 = std::min({py[0], py[1], py[2]}) - kCoverageMargin,
+                   y1 = std::max({py[0], py[1], py[2]}) + kCoverageMargin;
+      const int i0 = std::max(0, static_cast<int>(std::ceil(x0 - 0.5))),
+                i1 = std::min(W - 1, static_cast<int>(std::floor(x1 - 0.5)));
+      const int j0 = std::max(0, static_cast<int>(std::ceil(y0 - 0.5))),
+                j1 = std::min(H - 1, static_cast<int>(std::floor(y1 - 0.5)));
+      for (int j = j0; j <= j1; ++j) {
+        const double cy = j + 0.5;
+        // Candidates of this row: the centres cx where each edge's signed
+        // distance is >= -margin (a linear bound on cx per edge, widened by
+        // kSpanPad), so the work is the triangle's rows plus its texels, not its
+        // bounding box; the exact test below decides as before.
+        double lo = i0 + 0.5, hi = i1 + 0.5;
+        for (int k = 0; k < 3 && lo <= hi; ++k) {
+          // sgn (ex (cy - py) - ey (cx - px)) >= -margin el  <=>  a (cx - px) >= b
+          const double a = -sgn * ey[k], b = -kCoverageMargin * el[k] - sgn * ex[k] * (cy - py[k]);
+          if (a > 0)
+            lo = std::max(lo, px[k] + b / a - kSpanPad);
+          else if (a < 0)
+            hi = std::min(hi, px[k] + b / a + kSpanPad);
+          else if (b > kSpanPad * el[k])
+            hi = lo - 1;  // parallel edge, row wholly outside
+        }
+        ++work;
+        if (!(lo <= hi)) continue;
+        const int ia = std::max(i0, static_cast<int>(std::ceil(lo - 0.5)));
+        const int ib = std::min(i1, static_cast<int>(std::floor(hi - 0.5)));
+        if (ib >= ia) work += static_cast<uint64_t>(ib - ia + 1);
+        for (int i = ia; i <= ib; ++i) {
+          const double cx = i + 0.5;
+          double d = HUGE_VAL;  // signed distance (texels) of the centre inside the nearest edge
+          for (int k = 0; k < 3; ++k) d = std::min(d, sgn * (ex[k] * (cy - py[k]) - ey[k] * (cx - px[k])) / el[k]);
+          if (d < -kCoverageMargin) continue;
+          near[at(i, j)] = 1;
+          if (d > kCoverageMargin && a.texel(i, j)[3] != 1.0f) {
+            fail(texel_str(i, j) + " has its centre inside the UV triangle of coarse face " + s(f) +
+                 " but coverage A = " + fmt("%.9g", a.texel(i, j)[3]) + " (must be 1)");
+          }
+        }
+      }
+      check_work();
+    }
+    for (int j = 0; j < H; ++j) {
+      for (int i = 0; i < W; ++i) {
+        if (a.texel(i, j)[3] == 1.0f && !near[at(i, j)]) {
+          fail(texel_str(i, j) + " has coverage A = 1 but its centre lies in no UV triangle of the coarse mesh");
         }
       }
     }
-    check_work();
   }
-  for (int j = 0; j < H; ++j) {
-    for (int i = 0; i < W; ++i) {
-      if (a.texel(i, j)[3] == 1.0f && !near[at(i, j)]) {
-        fail(texel_str(i, j) + " has coverage A = 1 but its centre lies in no UV triangle of the coarse mesh");
-      }
-    }
-  }
+};
+
+void check_atlas_texels(const Model& model, const io::ManifestInfo& info, const std::string& label) {
+  AtlasCheck c(model, label);
+  c.coverage_values();
+  c.fill(info.gutter);
+  c.footprints(info.gutter);
+  c.coverage_against_uvs();
 }
 
 // ---- pieces -------------------------------------------------------------------
 
-void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo& info, const std::string& label,
-                 bool invariants) {
-  auto fail = [&](const std::string& what) { throw BundleError(BundleErrorClass::pieces, label + ": " + what); };
+// load_pieces' failure: the pieces file's error class, the bundle's label.
+struct PiecesFail {
+  const std::string& label;
+  [[noreturn]] void operator()(const std::string& what) const {
+    throw BundleError(BundleErrorClass::pieces, label + ": " + what);
+  }
+};
+
+// Piece ids in range and ordered; faces' vertices in range and of their own piece.
+void check_piece_ids(const io::PiecesPly& ply, const io::ManifestInfo& info, const PiecesFail& fail) {
   const size_t nv = ply.vertices.size(), nf = ply.faces.size(), np = ply.coarse_faces.size();
   if (np != info.piece_count) fail(s(np) + " pieces, the manifest says " + s(info.piece_count));
   if (np == 0) fail("no pieces");
@@ -529,20 +572,27 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
            s(ply.face_piece[wrong.first]) + ") uses vertices of pieces [" + list + "]");
     }
   }
-  if (invariants) {
-    First bad;
-    for (size_t i = 0; i < nv; ++i)
-      if (!finite3(ply.vertices[i])) bad.add(i);
-    if (bad)
-      fail(count_of(bad.count, "vertex", "vertices") + " with non-finite positions (first: vertex " + s(bad.first) +
-           ")");
-    First far;
-    for (size_t i = 0; i < nv; ++i)
-      if (far3(ply.vertices[i])) far.add(i);
-    if (far)
-      fail(count_of(far.count, "vertex", "vertices") +
-           " farther than 10000 m from the origin along an axis (first: vertex " + s(far.first) + ")");
-  }
+}
+
+// Vertex positions finite and near the origin.
+void check_piece_vertices(const io::PiecesPly& ply, const PiecesFail& fail) {
+  const size_t nv = ply.vertices.size();
+  First bad;
+  for (size_t i = 0; i < nv; ++i)
+    if (!finite3(ply.vertices[i])) bad.add(i);
+  if (bad)
+    fail(count_of(bad.count, "vertex", "vertices") + " with non-finite positions (first: vertex " + s(bad.first) + ")");
+  First far;
+  for (size_t i = 0; i < nv; ++i)
+    if (far3(ply.vertices[i])) far.add(i);
+  if (far)
+    fail(count_of(far.count, "vertex", "vertices") +
+         " farther than 10000 m from the origin along an axis (first: vertex " + s(far.first) + ")");
+}
+
+// Each piece's coarse triangles in range, ascending and unique.
+void check_coarse_maps(const Model& model, const io::PiecesPly& ply, const PiecesFail& fail) {
+  const size_t np = ply.coarse_faces.size();
   const size_t ncoarse = model.faces.size();
   for (size_t p = 0; p < np; ++p) {
     const auto& mp = ply.coarse_faces[p];
@@ -555,19 +605,24 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
     for (size_t k = 1; k < mp.size(); ++k)
       if (mp[k] <= mp[k - 1]) fail("coarse_faces of piece " + s(p) + " are not ascending and unique");
   }
+}
 
-  // Pieces: contiguous ranges (ids are in range and ordered).
-  std::vector<size_t> vbegin(np + 1, 0), fbegin(np + 1, 0);
+// Pieces: contiguous ranges (vbegin, fbegin: each piece's first vertex and
+// face, then the counts). The piece limits bound the per-piece checks below (closedness sorts the
+// edges, convexity tests every vertex against every face plane) and the
+// later stages (FCL's convex pieces), whatever LoadOptions says: without
+// them one piece of 8 MB took a minute to check.
+void piece_ranges(const io::PiecesPly& ply, const PiecesFail& fail, std::vector<size_t>& vbegin,
+                  std::vector<size_t>& fbegin) {
+  const size_t nv = ply.vertices.size(), nf = ply.faces.size(), np = ply.coarse_faces.size();
+  vbegin.assign(np + 1, 0);
+  fbegin.assign(np + 1, 0);
   for (size_t i = 0; i < nv; ++i) ++vbegin[ply.vertex_piece[i] + 1];
   for (size_t f = 0; f < nf; ++f) ++fbegin[ply.face_piece[f] + 1];
   for (size_t p = 0; p < np; ++p) {
     vbegin[p + 1] += vbegin[p];
     fbegin[p + 1] += fbegin[p];
   }
-  // The piece limits bound the per-piece checks below (closedness sorts the
-  // edges, convexity tests every vertex against every face plane) and the
-  // later stages (FCL's convex pieces), whatever LoadOptions says: without
-  // them one piece of 8 MB took a minute to check.
   for (size_t p = 0; p < np; ++p) {
     const size_t pv = vbegin[p + 1] - vbegin[p], pf = fbegin[p + 1] - fbegin[p];
     if (pv > io::kMaxPieceVertices) {
@@ -579,6 +634,97 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
            s(io::kMaxPieceFaces) + " triangles)");
     }
   }
+}
+
+// The first piece of each kind of defect, and their counts.
+struct PieceIssues {
+  First small, open, degen, inward, nonconvex;
+  std::string small_ex, open_ex, degen_ex, inward_ex, nonconvex_ex;
+};
+
+// The invariants of piece p (of at least 4 vertices and faces): closed,
+// no zero-area face, wound outward, convex within tol. Records the first
+// defect found in `is`.
+void check_piece(const ConvexPiece& piece, const size_t p, const double tol, PieceIssues& is) {
+  // Closed and consistently wound: every directed edge once, its reverse once.
+  std::vector<std::pair<uint32_t, uint32_t>> edges;
+  edges.reserve(piece.faces.size() * 3);
+  for (const Tri& t : piece.faces)
+    for (int k = 0; k < 3; ++k) edges.emplace_back(t[k], t[(k + 1) % 3]);
+  std::sort(edges.begin(), edges.end());
+  bool closed = std::adjacent_find(edges.begin(), edges.end()) == edges.end();
+  for (size_t k = 0; k < edges.size() && closed; ++k) {
+    closed = std::binary_search(edges.begin(), edges.end(), std::make_pair(edges[k].second, edges[k].first));
+  }
+  if (!closed) {
+    if (!is.open) is.open_ex = "piece " + s(p);
+    is.open.add(p);
+    return;
+  }
+  const size_t nfp = piece.faces.size();
+  std::vector<Vec3> normals(nfp);
+  bool zero = false;
+  for (size_t f = 0; f < nfp && !zero; ++f) {
+    const Tri& t = piece.faces[f];
+    normals[f] = (piece.vertices[t[1]] - piece.vertices[t[0]]).cross(piece.vertices[t[2]] - piece.vertices[t[0]]);
+    if (normals[f].norm() == 0.0) {
+      zero = true;
+      if (!is.degen) is.degen_ex = "piece " + s(p) + " face " + s(f) + " (local)";
+    }
+  }
+  if (zero) {
+    is.degen.add(p);
+    return;
+  }
+  // Signed volume about the centroid (divergence theorem): > 0 iff outward.
+  Vec3 ctr = Vec3::Zero();
+  for (const Vec3& v : piece.vertices) ctr += v;
+  ctr /= static_cast<double>(piece.vertices.size());
+  double vol = 0.0;
+  for (const Tri& t : piece.faces) {
+    vol += (piece.vertices[t[0]] - ctr).dot((piece.vertices[t[1]] - ctr).cross(piece.vertices[t[2]] - ctr));
+  }
+  vol /= 6.0;
+  if (!(vol > 0.0)) {
+    if (!is.inward) is.inward_ex = "piece " + s(p) + " (volume " + fmt("%.3g", vol) + " m^3)";
+    is.inward.add(p);
+    return;
+  }
+  // Convex: every vertex of the piece on or behind every face plane.
+  double worst = -HUGE_VAL;
+  size_t wf = 0, wv = 0;
+  for (size_t f = 0; f < nfp; ++f) {
+    const Vec3 nrm = normals[f].normalized();
+    const Vec3& a = piece.vertices[piece.faces[f][0]];
+    for (size_t i = 0; i < piece.vertices.size(); ++i) {
+      const double d = nrm.dot(piece.vertices[i] - a);
+      if (d > worst) {
+        worst = d;
+        wf = f;
+        wv = i;
+      }
+    }
+  }
+  if (worst > tol) {
+    if (!is.nonconvex) {
+      is.nonconvex_ex = "piece " + s(p) + ": vertex " + s(wv) + " lies " + fmt("%.3g", worst) + " m in front of face " +
+                        s(wf) + " (local indices)";
+    }
+    is.nonconvex.add(p);
+  }
+}
+
+void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo& info, const std::string& label,
+                 bool invariants) {
+  const PiecesFail fail{label};
+  check_piece_ids(ply, info, fail);
+  if (invariants) check_piece_vertices(ply, fail);
+  check_coarse_maps(model, ply, fail);
+  const size_t np = ply.coarse_faces.size();
+
+  // Pieces: contiguous ranges (ids are in range and ordered).
+  std::vector<size_t> vbegin, fbegin;
+  piece_ranges(ply, fail, vbegin, fbegin);
   // The coarse mesh's bounding-box diagonal sets the convexity tolerance.
   Vec3 lo = Vec3::Constant(HUGE_VAL), hi = Vec3::Constant(-HUGE_VAL);
   for (const Vec3& v : model.vertices) {
@@ -589,8 +735,7 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
   const double tol = kConvexRel * (model.vertices.empty() ? 0.0 : (hi - lo).norm()) + kConvexAbs;
 
   // One message per kind, reported in the reference's order of kinds.
-  First small, open, degen, inward, nonconvex;
-  std::string small_ex, open_ex, degen_ex, inward_ex, nonconvex_ex;
+  PieceIssues is;
   model.pieces.resize(np);
   for (size_t p = 0; p < np; ++p) {
     ConvexPiece& piece = model.pieces[p];
@@ -603,86 +748,21 @@ void load_pieces(Model& model, const io::PiecesPly& ply, const io::ManifestInfo&
     }
     piece.coarse_faces = ply.coarse_faces[p];
     if (piece.vertices.size() < 4 || piece.faces.size() < 4) {
-      if (!small)
-        small_ex =
+      if (!is.small)
+        is.small_ex =
             "piece " + s(p) + " has " + s(piece.vertices.size()) + " vertices, " + s(piece.faces.size()) + " faces";
-      small.add(p);
+      is.small.add(p);
       continue;
     }
-    if (!invariants) continue;
-    // Closed and consistently wound: every directed edge once, its reverse once.
-    std::vector<std::pair<uint32_t, uint32_t>> edges;
-    edges.reserve(piece.faces.size() * 3);
-    for (const Tri& t : piece.faces)
-      for (int k = 0; k < 3; ++k) edges.emplace_back(t[k], t[(k + 1) % 3]);
-    std::sort(edges.begin(), edges.end());
-    bool closed = std::adjacent_find(edges.begin(), edges.end()) == edges.end();
-    for (size_t k = 0; k < edges.size() && closed; ++k) {
-      closed = std::binary_search(edges.begin(), edges.end(), std::make_pair(edges[k].second, edges[k].first));
-    }
-    if (!closed) {
-      if (!open) open_ex = "piece " + s(p);
-      open.add(p);
-      continue;
-    }
-    const size_t nfp = piece.faces.size();
-    std::vector<Vec3> normals(nfp);
-    bool zero = false;
-    for (size_t f = 0; f < nfp && !zero; ++f) {
-      const Tri& t = piece.faces[f];
-      normals[f] = (piece.vertices[t[1]] - piece.vertices[t[0]]).cross(piece.vertices[t[2]] - piece.vertices[t[0]]);
-      if (normals[f].norm() == 0.0) {
-        zero = true;
-        if (!degen) degen_ex = "piece " + s(p) + " face " + s(f) + " (local)";
-      }
-    }
-    if (zero) {
-      degen.add(p);
-      continue;
-    }
-    // Signed volume about the centroid (divergence theorem): > 0 iff outward.
-    Vec3 ctr = Vec3::Zero();
-    for (const Vec3& v : piece.vertices) ctr += v;
-    ctr /= static_cast<double>(piece.vertices.size());
-    double vol = 0.0;
-    for (const Tri& t : piece.faces) {
-      vol += (piece.vertices[t[0]] - ctr).dot((piece.vertices[t[1]] - ctr).cross(piece.vertices[t[2]] - ctr));
-    }
-    vol /= 6.0;
-    if (!(vol > 0.0)) {
-      if (!inward) inward_ex = "piece " + s(p) + " (volume " + fmt("%.3g", vol) + " m^3)";
-      inward.add(p);
-      continue;
-    }
-    // Convex: every vertex of the piece on or behind every face plane.
-    double worst = -HUGE_VAL;
-    size_t wf = 0, wv = 0;
-    for (size_t f = 0; f < nfp; ++f) {
-      const Vec3 nrm = normals[f].normalized();
-      const Vec3& a = piece.vertices[piece.faces[f][0]];
-      for (size_t i = 0; i < piece.vertices.size(); ++i) {
-        const double d = nrm.dot(piece.vertices[i] - a);
-        if (d > worst) {
-          worst = d;
-          wf = f;
-          wv = i;
-        }
-      }
-    }
-    if (worst > tol) {
-      if (!nonconvex) {
-        nonconvex_ex = "piece " + s(p) + ": vertex " + s(wv) + " lies " + fmt("%.3g", worst) + " m in front of face " +
-                       s(wf) + " (local indices)";
-      }
-      nonconvex.add(p);
-    }
+    if (invariants) check_piece(piece, p, tol, is);
   }
-  if (small) fail(count_of(small.count, "piece") + " with fewer than 4 vertices or 4 faces: " + small_ex);
-  if (open) fail(count_of(open.count, "piece") + " not a closed, consistently wound polyhedron: " + open_ex);
-  if (degen) fail(count_of(degen.count, "piece") + " with a zero-area face: " + degen_ex);
-  if (inward) fail(count_of(inward.count, "piece") + " wound inward (negative volume): " + inward_ex);
-  if (nonconvex)
-    fail(count_of(nonconvex.count, "piece") + " not convex (tolerance " + fmt("%.3g", tol) + " m): " + nonconvex_ex);
+  if (is.small) fail(count_of(is.small.count, "piece") + " with fewer than 4 vertices or 4 faces: " + is.small_ex);
+  if (is.open) fail(count_of(is.open.count, "piece") + " not a closed, consistently wound polyhedron: " + is.open_ex);
+  if (is.degen) fail(count_of(is.degen.count, "piece") + " with a zero-area face: " + is.degen_ex);
+  if (is.inward) fail(count_of(is.inward.count, "piece") + " wound inward (negative volume): " + is.inward_ex);
+  if (is.nonconvex)
+    fail(count_of(is.nonconvex.count, "piece") + " not convex (tolerance " + fmt("%.3g", tol) +
+         " m): " + is.nonconvex_ex);
 }
 
 }  // namespace

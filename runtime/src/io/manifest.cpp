@@ -239,17 +239,12 @@ class Checker {
 
 }  // namespace
 
-ManifestInfo check_manifest(const json& m, const std::string& label) {
-  Checker c(label);
-  ManifestInfo info;
-  if (!m.is_object()) {
-    c.fail(BundleErrorClass::schema, std::string("top level is ") +
-                                         (m.is_array() ? "an array" : std::string("a ") + m.type_name()) +
-                                         ", not an object");
-  }
+namespace {
 
-  // Identity and version first (class `version`): a bundle of another major
-  // version may have another schema, whose errors would hide the real problem.
+// Identity and version first (class `version`): a bundle of another major
+// version may have another schema, whose errors would hide the real problem.
+// Returns the version (MAJOR.MINOR, major 1).
+std::string check_version(const Checker& c, const json& m) {
   auto fmt = m.find("format");
   if (fmt == m.end() || !fmt->is_string() || fmt->get<std::string>() != "hbundle") {
     c.fail(BundleErrorClass::version,
@@ -275,39 +270,11 @@ ManifestInfo check_manifest(const json& m, const std::string& label) {
   if (major != "1") {
     c.fail(BundleErrorClass::version, "unsupported major version " + version + " (this reader supports 1.x)");
   }
-  info.format_version = version;
+  return version;
+}
 
-  // Every required field of the schema with its type (class `schema`), in the
-  // schema's order.
-  for (const char* key : {"format", "format_version", "generator", "units", "source", "method", "settings", "seeds",
-                          "libraries", "files", "coarse", "pieces", "atlas", "mass", "quality", "warnings"}) {
-    c.field(m, "", key);
-  }
-  const json& gen = c.object(m, "", "generator");
-  c.constant(gen, "generator", "name", "hbake");
-  c.string(gen, "generator", "version", true);
-
-  const json& units = c.object(m, "", "units");
-  c.constant(units, "units", "length", "m");
-  c.one_of(units, "units", "source_unit", {"mm", "cm", "m", "in", "unknown"});
-  c.number(units, "units", "scale_to_meters", 0.0, true);
-
-  const json& source = c.object(m, "", "source");
-  info.source_name = c.file_name(source, "source", "name");
-  c.sha256(source, "source", "sha256");
-  c.count(source, "source", "vertices");
-  c.count(source, "source", "triangles");
-  c.count(source, "source", "bodies");
-  c.boolean(source, "source", "closed");
-
-  c.one_of(m, "", "method", {"cage", "pp"});
-  c.object(m, "", "settings");
-  const json& seeds = c.object(m, "", "seeds");
-  c.integer(seeds, "seeds", "coacd");
-  c.integer(seeds, "seeds", "quality");
-  const json& libs = c.object(m, "", "libraries");
-  for (auto it = libs.begin(); it != libs.end(); ++it) c.type(it.value(), "libraries/" + it.key(), "string");
-
+// files: the three files, and the atlas's EXR header.
+void check_files(const Checker& c, const json& m, ManifestInfo& info) {
   const json& files = c.object(m, "", "files");
   auto file_entry = [&](const char* key, FileEntry& out) -> const json& {
     const std::string p = std::string("files/") + key;
@@ -350,7 +317,10 @@ ManifestInfo check_manifest(const json& m, const std::string& label) {
   }
   c.constant(fatlas, "files/atlas", "pixel_type", "float");
   info.atlas_spec.compression = c.one_of(fatlas, "files/atlas", "compression", {"zip", "piz"});
+}
 
+// coarse, pieces, atlas, mass, quality.
+void check_summaries(const Checker& c, const json& m, ManifestInfo& info) {
   const json& coarse = c.object(m, "", "coarse");
   info.coarse_vertices = c.count(coarse, "coarse", "vertices", 3);
   info.coarse_triangles = c.count(coarse, "coarse", "triangles", 1);
@@ -391,6 +361,54 @@ ManifestInfo check_manifest(const json& m, const std::string& label) {
     for (const char* k : {"mean", "p95", "max", "mean_rel", "p95_rel", "max_rel"}) c.number(r, p, k, 0.0);
   }
   info.quality.bbox_diagonal = c.number(q, "quality", "bbox_diagonal", 0.0, true);
+}
+
+}  // namespace
+
+ManifestInfo check_manifest(const json& m, const std::string& label) {
+  Checker c(label);
+  ManifestInfo info;
+  if (!m.is_object()) {
+    c.fail(BundleErrorClass::schema, std::string("top level is ") +
+                                         (m.is_array() ? "an array" : std::string("a ") + m.type_name()) +
+                                         ", not an object");
+  }
+
+  info.format_version = check_version(c, m);
+
+  // Every required field of the schema with its type (class `schema`), in the
+  // schema's order.
+  for (const char* key : {"format", "format_version", "generator", "units", "source", "method", "settings", "seeds",
+                          "libraries", "files", "coarse", "pieces", "atlas", "mass", "quality", "warnings"}) {
+    c.field(m, "", key);
+  }
+  const json& gen = c.object(m, "", "generator");
+  c.constant(gen, "generator", "name", "hbake");
+  c.string(gen, "generator", "version", true);
+
+  const json& units = c.object(m, "", "units");
+  c.constant(units, "units", "length", "m");
+  c.one_of(units, "units", "source_unit", {"mm", "cm", "m", "in", "unknown"});
+  c.number(units, "units", "scale_to_meters", 0.0, true);
+
+  const json& source = c.object(m, "", "source");
+  info.source_name = c.file_name(source, "source", "name");
+  c.sha256(source, "source", "sha256");
+  c.count(source, "source", "vertices");
+  c.count(source, "source", "triangles");
+  c.count(source, "source", "bodies");
+  c.boolean(source, "source", "closed");
+
+  c.one_of(m, "", "method", {"cage", "pp"});
+  c.object(m, "", "settings");
+  const json& seeds = c.object(m, "", "seeds");
+  c.integer(seeds, "seeds", "coacd");
+  c.integer(seeds, "seeds", "quality");
+  const json& libs = c.object(m, "", "libraries");
+  for (auto it = libs.begin(); it != libs.end(); ++it) c.type(it.value(), "libraries/" + it.key(), "string");
+
+  check_files(c, m, info);
+  check_summaries(c, m, info);
 
   const json& warnings = c.field(m, "", "warnings");
   c.type(warnings, "warnings", "array");

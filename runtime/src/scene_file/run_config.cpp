@@ -528,13 +528,13 @@ Material read_material(const Section& s, Material m) {
   return m;
 }
 
-}  // namespace
+// One of the file's tables by name (null when absent: its getters return their defaults).
+Section section_of(const FileContext& ctx, const toml::table& root, const std::string& name) {
+  return Section(ctx, root[name].as_table(), name, name);
+}
 
-RunConfig load_run_config(const std::string& path) {
-  FileContext ctx;
-  ctx.file = path;
-  ctx.dir = fs::path(path).parent_path();
-
+// The file's text, parsed.
+toml::table parse_scene_file(const std::string& path) {
   // A regular file of at most kMaxSceneFileBytes: a FIFO would block the
   // read and /dev/zero would never end it.
   std::string text;
@@ -544,16 +544,17 @@ RunConfig load_run_config(const std::string& path) {
     throw SceneFileError(path, "", e.problem);
   }
 
-  toml::table root;
   try {
-    root = toml::parse(text, path);
+    return toml::parse(text, path);
   } catch (const toml::parse_error& e) {
     const auto& b = e.source().begin;
     throw SceneFileError(path, "",
                          "line " + std::to_string(b.line) + ", column " + std::to_string(b.column) + ": " +
                              one_line(std::string(e.description())));
   }
+}
 
+void check_top_level(const FileContext& ctx, const toml::table& root) {
   // Top level: only the known tables, each of its own kind.
   const auto& all = known_keys();
   for (auto&& [k, v] : root) {
@@ -582,140 +583,130 @@ RunConfig load_run_config(const std::string& path) {
     if (!is_array_table(name) && !v.is_table())
       ctx.fail(name, std::string("expected a table [") + name + "], got " + type_name(v), &v);
   }
-  auto section = [&](const std::string& name) { return Section(ctx, root[name].as_table(), name, name); };
+}
 
-  RunConfig c;
-  c.file = path;
+// [run]
+void read_run(const Section& s, RunConfig& c) {
+  c.duration = s.range("duration", c.duration, kDuration);
+  c.lockstep = s.boolean("lockstep", c.lockstep);
+  c.sim_every = s.integer("sim_every", c.sim_every, 1, 10'000);
+  c.max_step = s.range("max_step", c.max_step, kMaxStep);
+  c.backend = s.choice("backend", c.backend, {"cpu", "gl", "auto"});
+  // The GL backend's settings: refused where no GL backend can run (a
+  // setting that does nothing is a scene that does not do what its author
+  // thinks, as a udp key on a scripted device).
+  if (c.backend == "cpu" && s.has("gl_search"))
+    s.fail("gl_search", "only with backend = \"gl\" or \"auto\" (this scene's backend is \"cpu\")");
+  c.gl_search = s.choice("gl_search", c.gl_search, {"compute", "occlusion"});
+  if (s.has("occlusion_steps") && (c.backend == "cpu" || c.gl_search != "occlusion"))
+    s.fail("occlusion_steps", "only with gl_search = \"occlusion\" (and backend = \"gl\" or \"auto\")");
+  c.occlusion_steps = s.integer("occlusion_steps", c.occlusion_steps, 1, 23);
+  // The CPU backend's threads (SceneOptions::threads): every hardware
+  // thread unless the scene says otherwise; the results do not depend on it.
+  c.scene.threads = s.integer("threads", 0, 0, kMaxThreads);
+}
 
-  // [run]
-  {
-    const Section s = section("run");
-    c.duration = s.range("duration", c.duration, kDuration);
-    c.lockstep = s.boolean("lockstep", c.lockstep);
-    c.sim_every = s.integer("sim_every", c.sim_every, 1, 10'000);
-    c.max_step = s.range("max_step", c.max_step, kMaxStep);
-    c.backend = s.choice("backend", c.backend, {"cpu", "gl", "auto"});
-    // The GL backend's settings: refused where no GL backend can run (a
-    // setting that does nothing is a scene that does not do what its author
-    // thinks, as a udp key on a scripted device).
-    if (c.backend == "cpu" && s.has("gl_search"))
-      s.fail("gl_search", "only with backend = \"gl\" or \"auto\" (this scene's backend is \"cpu\")");
-    c.gl_search = s.choice("gl_search", c.gl_search, {"compute", "occlusion"});
-    if (s.has("occlusion_steps") && (c.backend == "cpu" || c.gl_search != "occlusion"))
-      s.fail("occlusion_steps", "only with gl_search = \"occlusion\" (and backend = \"gl\" or \"auto\")");
-    c.occlusion_steps = s.integer("occlusion_steps", c.occlusion_steps, 1, 23);
-    // The CPU backend's threads (SceneOptions::threads): every hardware
-    // thread unless the scene says otherwise; the results do not depend on it.
-    c.scene.threads = s.integer("threads", 0, 0, kMaxThreads);
+// [[object]]: the probe first, then the objects it touches.
+void read_objects(const FileContext& ctx, const toml::table& root, RunConfig& c) {
+  const toml::array* objects = root["object"].as_array();
+  if (!objects || objects->size() < 2)
+    ctx.fail("object",
+             "a scene needs at least two [[object]] tables (the probe first, then what it touches), got " +
+                 std::to_string(objects ? objects->size() : 0),
+             objects);
+  for (size_t i = 0; i < objects->size(); ++i) {
+    const std::string label = "object[" + std::to_string(i) + "]";
+    const Section s(ctx, (*objects)[i].as_table(), "object", label);
+    ObjectConfig o;
+    o.name = s.string("name", "object" + std::to_string(i));
+    if (o.name.empty()) s.fail("name", "must not be empty");
+    for (size_t j = 0; j < c.objects.size(); ++j)
+      if (c.objects[j].name == o.name)
+        s.fail("name", quote_value(o.name) + " is also the name of object[" + std::to_string(j) + "]");
+    const auto bundle = s.path("bundle");
+    if (!bundle) s.missing("bundle", "every object needs the path of its bundle (a *.hbundle folder)");
+    std::error_code ec;
+    if (!fs::is_directory(*bundle, ec))
+      s.fail("bundle", "no bundle folder at " + printable(*bundle, 200) +
+                           (ec && ec != std::errc::no_such_file_or_directory ? " (" + ec.message() + ")" : ""));
+    o.bundle = *bundle;
+    o.pose.position = s.position("position");
+    o.pose.rotation = s.quaternion("orientation");
+    if (i == 0 && s.has("trajectory"))
+      s.fail("trajectory",
+             "object[0] is the probe: it follows the device through the coupling, not a trajectory (a scripted "
+             "device plays one: [device] trajectory)");
+    o.trajectory = s.existing_file("trajectory", kMaxTrajectoryBytes).value_or("");
+    c.objects.push_back(std::move(o));
   }
+}
 
-  // [[object]]: the probe first, then the objects it touches.
+// [force]: the texture force model and the contact search.
+void read_force(const Section& s, RunConfig& c) {
+  ForceOptions& f = c.scene.force;
+  f.stiffness = s.range("stiffness", f.stiffness, kContactStiffness);
+  f.resolution = s.integer("resolution", f.resolution, 8, kMaxResolution);
+  f.lin_step = s.range("lin_step", f.lin_step, kLinStep);
+  f.ang_step = s.range("ang_step", f.ang_step, kAngStep);
+  f.shortcut = s.boolean("shortcut", f.shortcut);
+  // The GL backend implements full re-rasterization only (hrt/gl_depth.h):
+  // refused here rather than at the first contact of the session. (auto
+  // then keeps to the CPU backend.)
+  if (f.shortcut && c.backend == "gl")
+    s.fail("shortcut", "the Sec. 5.2 shortcut is implemented by the CPU backend only, and run.backend is \"gl\"");
   {
-    const toml::array* objects = root["object"].as_array();
-    if (!objects || objects->size() < 2)
-      ctx.fail("object",
-               "a scene needs at least two [[object]] tables (the probe first, then what it touches), got " +
-                   std::to_string(objects ? objects->size() : 0),
-               objects);
-    for (size_t i = 0; i < objects->size(); ++i) {
-      const std::string label = "object[" + std::to_string(i) + "]";
-      const Section s(ctx, (*objects)[i].as_table(), "object", label);
-      ObjectConfig o;
-      o.name = s.string("name", "object" + std::to_string(i));
-      if (o.name.empty()) s.fail("name", "must not be empty");
-      for (size_t j = 0; j < c.objects.size(); ++j)
-        if (c.objects[j].name == o.name)
-          s.fail("name", quote_value(o.name) + " is also the name of object[" + std::to_string(j) + "]");
-      const auto bundle = s.path("bundle");
-      if (!bundle) s.missing("bundle", "every object needs the path of its bundle (a *.hbundle folder)");
-      std::error_code ec;
-      if (!fs::is_directory(*bundle, ec))
-        s.fail("bundle", "no bundle folder at " + printable(*bundle, 200) +
-                             (ec && ec != std::errc::no_such_file_or_directory ? " (" + ec.message() + ")" : ""));
-      o.bundle = *bundle;
-      o.pose.position = s.position("position");
-      o.pose.rotation = s.quaternion("orientation");
-      if (i == 0 && s.has("trajectory"))
-        s.fail("trajectory",
-               "object[0] is the probe: it follows the device through the coupling, not a trajectory (a scripted "
-               "device plays one: [device] trajectory)");
-      o.trajectory = s.existing_file("trajectory", kMaxTrajectoryBytes).value_or("");
-      c.objects.push_back(std::move(o));
-    }
+    const std::string h = s.choice("heights", "surface", {"surface", "coarse", "mesh"});
+    parse_height_mode(h, f.heights);  // one of the three, checked by choice()
   }
+  c.scene.collision.margin = s.range("margin", c.scene.collision.margin, kMargin);
+  ClusterOptions& cl = c.scene.cluster;
+  cl.max_patches = s.integer("max_patches", cl.max_patches, 1, 4096);
+  cl.auto_resolution = s.boolean("auto_resolution", cl.auto_resolution);
+  cl.max_resolution = s.integer("max_resolution", cl.max_resolution, 8, kMaxResolution);
+  if (cl.auto_resolution && cl.max_resolution < f.resolution)
+    s.fail(s.has("max_resolution") ? "max_resolution" : "resolution",
+           "max_resolution (" + std::to_string(cl.max_resolution) + ") must be at least the resolution (" +
+               std::to_string(f.resolution) + ")");
+  c.session.fade_time = s.range("fade_time", c.session.fade_time, kFadeTime);
+}
 
-  // [force]: the texture force model and the contact search.
-  {
-    const Section s = section("force");
-    ForceOptions& f = c.scene.force;
-    f.stiffness = s.range("stiffness", f.stiffness, kContactStiffness);
-    f.resolution = s.integer("resolution", f.resolution, 8, kMaxResolution);
-    f.lin_step = s.range("lin_step", f.lin_step, kLinStep);
-    f.ang_step = s.range("ang_step", f.ang_step, kAngStep);
-    f.shortcut = s.boolean("shortcut", f.shortcut);
-    // The GL backend implements full re-rasterization only (hrt/gl_depth.h):
-    // refused here rather than at the first contact of the session. (auto
-    // then keeps to the CPU backend.)
-    if (f.shortcut && c.backend == "gl")
-      s.fail("shortcut", "the Sec. 5.2 shortcut is implemented by the CPU backend only, and run.backend is \"gl\"");
-    {
-      const std::string h = s.choice("heights", "surface", {"surface", "coarse", "mesh"});
-      parse_height_mode(h, f.heights);  // one of the three, checked by choice()
-    }
-    c.scene.collision.margin = s.range("margin", c.scene.collision.margin, kMargin);
-    ClusterOptions& cl = c.scene.cluster;
-    cl.max_patches = s.integer("max_patches", cl.max_patches, 1, 4096);
-    cl.auto_resolution = s.boolean("auto_resolution", cl.auto_resolution);
-    cl.max_resolution = s.integer("max_resolution", cl.max_resolution, 8, kMaxResolution);
-    if (cl.auto_resolution && cl.max_resolution < f.resolution)
-      s.fail(s.has("max_resolution") ? "max_resolution" : "resolution",
-             "max_resolution (" + std::to_string(cl.max_resolution) + ") must be at least the resolution (" +
-                 std::to_string(f.resolution) + ")");
-    c.session.fade_time = s.range("fade_time", c.session.fade_time, kFadeTime);
-  }
+// [probe]
+void read_probe(const Section& s, RunConfig& c) {
+  c.session.density = s.range("density", c.session.density, kDensity);
+  c.session.gravity = s.vec3("gravity", c.session.gravity);
+  if (!(c.session.gravity.norm() <= kGravity.hi))
+    s.fail("gravity", "its norm must be at most " + fmt(kGravity.hi) + " m/s^2, got " + fmt(c.session.gravity.norm()));
+}
 
-  // [probe]
-  {
-    const Section s = section("probe");
-    c.session.density = s.range("density", c.session.density, kDensity);
-    c.session.gravity = s.vec3("gravity", c.session.gravity);
-    if (!(c.session.gravity.norm() <= kGravity.hi))
-      s.fail("gravity",
-             "its norm must be at most " + fmt(kGravity.hi) + " m/s^2, got " + fmt(c.session.gravity.norm()));
+// [coupling]: all four gains or none (then from the device's limits).
+void read_coupling(const Section& s, RunConfig& c) {
+  c.session.coupling_enabled = s.boolean("enabled", true);
+  const char* gains[] = {"k_lin", "b_lin", "k_ang", "b_ang"};
+  int given = 0;
+  for (const char* g : gains) given += s.has(g) ? 1 : 0;
+  if (given != 0 && given != 4)
+    for (const char* g : gains)
+      if (!s.has(g))
+        s.missing(g, "give all four gains k_lin, b_lin, k_ang, b_ang, or none (then they follow the device's limits)");
+  if (given == 4) {
+    c.session.coupling.k_lin = s.range("k_lin", 0.0, kCouplingK);
+    c.session.coupling.b_lin = s.range("b_lin", 0.0, kCouplingB);
+    c.session.coupling.k_ang = s.range("k_ang", 0.0, kCouplingKAng);
+    c.session.coupling.b_ang = s.range("b_ang", 0.0, kCouplingBAng);
+    c.coupling_from_device = false;
+  } else {
+    // Negative until the caller fills them from the open device
+    // (default_coupling): a gain of -1 reaching a Session is visibly wrong.
+    c.session.coupling = Coupling{-1.0, -1.0, -1.0, -1.0};
+    c.coupling_from_device = c.session.coupling_enabled;
   }
+}
 
-  // [coupling]: all four gains or none (then from the device's limits).
-  {
-    const Section s = section("coupling");
-    c.session.coupling_enabled = s.boolean("enabled", true);
-    const char* gains[] = {"k_lin", "b_lin", "k_ang", "b_ang"};
-    int given = 0;
-    for (const char* g : gains) given += s.has(g) ? 1 : 0;
-    if (given != 0 && given != 4)
-      for (const char* g : gains)
-        if (!s.has(g))
-          s.missing(g,
-                    "give all four gains k_lin, b_lin, k_ang, b_ang, or none (then they follow the device's limits)");
-    if (given == 4) {
-      c.session.coupling.k_lin = s.range("k_lin", 0.0, kCouplingK);
-      c.session.coupling.b_lin = s.range("b_lin", 0.0, kCouplingB);
-      c.session.coupling.k_ang = s.range("k_ang", 0.0, kCouplingKAng);
-      c.session.coupling.b_ang = s.range("b_ang", 0.0, kCouplingBAng);
-      c.coupling_from_device = false;
-    } else {
-      // Negative until the caller fills them from the open device
-      // (default_coupling): a gain of -1 reaching a Session is visibly wrong.
-      c.session.coupling = Coupling{-1.0, -1.0, -1.0, -1.0};
-      c.coupling_from_device = c.session.coupling_enabled;
-    }
-  }
-
-  // [friction]: the scene's default material; [[material]] per pair.
-  {
-    const Section s = section("friction");
-    c.session.friction = s.boolean("enabled", c.session.friction);
-    c.session.material = read_material(s, c.session.material);
-  }
+// [friction]: the scene's default material; [[material]] per pair.
+void read_friction(const FileContext& ctx, const toml::table& root, RunConfig& c) {
+  const Section s = section_of(ctx, root, "friction");
+  c.session.friction = s.boolean("enabled", c.session.friction);
+  c.session.material = read_material(s, c.session.material);
   if (const toml::array* materials = root["material"].as_array()) {
     c.session.materials.assign(c.objects.size(), c.session.material);
     std::vector<int> set_by(c.objects.size(), -1);
@@ -748,20 +739,77 @@ RunConfig load_run_config(const std::string& path) {
     bool any = c.session.material.mu_static > 0;
     for (const Material& m : c.session.materials) any = any || m.mu_static > 0;
     if (!any)
-      section("friction")
+      section_of(ctx, root, "friction")
           .fail("enabled", "friction is on but no mu_static > 0 is set (in [friction] or a [[material]])");
   }
+}
 
-  // [workspace]: device frame -> scene, and the grasp on the probe.
-  {
-    const Section s = section("workspace");
-    WorkspaceMap& m = c.loop.map;
-    m.scale = s.range("scale", m.scale, kScale);
-    m.offset.position = s.position("offset_position");
-    m.offset.rotation = s.quaternion("offset_orientation");
-    m.grasp.position = s.position("grasp_position");
-    m.grasp.rotation = s.quaternion("grasp_orientation");
-  }
+// [workspace]: device frame -> scene, and the grasp on the probe.
+void read_workspace(const Section& s, RunConfig& c) {
+  WorkspaceMap& m = c.loop.map;
+  m.scale = s.range("scale", m.scale, kScale);
+  m.offset.position = s.position("offset_position");
+  m.offset.rotation = s.quaternion("offset_orientation");
+  m.grasp.position = s.position("grasp_position");
+  m.grasp.rotation = s.quaternion("grasp_orientation");
+}
+
+// [loop]
+void read_loop(const FileContext& ctx, const toml::table& root, RunConfig& c) {
+  const Section s = section_of(ctx, root, "loop");
+  DeviceLoopOptions& l = c.loop;
+  l.period = s.range("period", l.period, kPeriod);
+  l.watchdog = s.range("watchdog", l.watchdog, kWatchdog);
+  l.watchdog_ramp = s.range("watchdog_ramp", l.watchdog_ramp, kWatchdogRamp);
+  l.soft_start = s.range("soft_start", l.soft_start, kSoftStart);
+  l.max_force_rate = s.range("max_force_rate", l.max_force_rate, kForceRate);
+  l.max_torque_rate = s.range("max_torque_rate", l.max_torque_rate, kTorqueRate);
+  l.multirate = s.boolean("multirate", l.multirate);
+  l.realtime = s.boolean("realtime", l.realtime);
+  l.realtime_priority = s.integer("priority", l.realtime_priority, 1, 99);
+  if (const auto cap = s.integer("log_capacity", 0, static_cast<int64_t>(kMaxLogCapacity)))
+    l.log_capacity = static_cast<size_t>(*cap);
+  if (c.max_step < l.period && section_of(ctx, root, "run").has("max_step"))
+    section_of(ctx, root, "run")
+        .fail("max_step", "must be at least the device period (" + fmt(l.period) + " s), got " + fmt(c.max_step));
+}
+
+// [trace]
+void read_trace(const FileContext& ctx, const toml::table& root, RunConfig& c) {
+  const Section s = section_of(ctx, root, "trace");
+  c.trace.path = s.path("path").value_or("");
+  c.trace.device_log = s.path("device_log").value_or("");
+  // Checked now rather than when the files are written: the device log is
+  // written after the session, and a typo must not cost the run.
+  if (!c.trace.path.empty()) check_parent_folder(s, "path", c.trace.path);
+  if (!c.trace.device_log.empty()) check_parent_folder(s, "device_log", c.trace.device_log);
+  c.trace.rate_set = s.has("rate");
+  c.trace.rate = s.range("rate", c.trace.rate, kTraceRate);
+  c.trace.max_bytes =
+      static_cast<uint64_t>(s.range("max_bytes", static_cast<double>(c.trace.max_bytes), kTraceMaxBytes));
+  if (!c.trace.device_log.empty() && section_of(ctx, root, "loop").has("log_capacity") && c.loop.log_capacity == 0)
+    section_of(ctx, root, "loop").fail("log_capacity", "is 0 but [trace] device_log is set: nothing would be logged");
+}
+
+}  // namespace
+
+RunConfig load_run_config(const std::string& path) {
+  FileContext ctx;
+  ctx.file = path;
+  ctx.dir = fs::path(path).parent_path();
+  const toml::table root = parse_scene_file(path);
+  check_top_level(ctx, root);
+  auto section = [&](const std::string& name) { return section_of(ctx, root, name); };
+
+  RunConfig c;
+  c.file = path;
+  read_run(section("run"), c);
+  read_objects(ctx, root, c);
+  read_force(section("force"), c);
+  read_probe(section("probe"), c);
+  read_coupling(section("coupling"), c);
+  read_friction(ctx, root, c);
+  read_workspace(section("workspace"), c);
 
   // [device]
   read_device(section("device"), c.device);
@@ -774,42 +822,8 @@ RunConfig load_run_config(const std::string& path) {
                         "lockstep runs without a wall clock, so it needs a scripted or virtual device (this one is \"" +
                             c.device.type + "\")");
 
-  // [loop]
-  {
-    const Section s = section("loop");
-    DeviceLoopOptions& l = c.loop;
-    l.period = s.range("period", l.period, kPeriod);
-    l.watchdog = s.range("watchdog", l.watchdog, kWatchdog);
-    l.watchdog_ramp = s.range("watchdog_ramp", l.watchdog_ramp, kWatchdogRamp);
-    l.soft_start = s.range("soft_start", l.soft_start, kSoftStart);
-    l.max_force_rate = s.range("max_force_rate", l.max_force_rate, kForceRate);
-    l.max_torque_rate = s.range("max_torque_rate", l.max_torque_rate, kTorqueRate);
-    l.multirate = s.boolean("multirate", l.multirate);
-    l.realtime = s.boolean("realtime", l.realtime);
-    l.realtime_priority = s.integer("priority", l.realtime_priority, 1, 99);
-    if (const auto cap = s.integer("log_capacity", 0, static_cast<int64_t>(kMaxLogCapacity)))
-      l.log_capacity = static_cast<size_t>(*cap);
-    if (c.max_step < l.period && section("run").has("max_step"))
-      section("run").fail("max_step",
-                          "must be at least the device period (" + fmt(l.period) + " s), got " + fmt(c.max_step));
-  }
-
-  // [trace]
-  {
-    const Section s = section("trace");
-    c.trace.path = s.path("path").value_or("");
-    c.trace.device_log = s.path("device_log").value_or("");
-    // Checked now rather than when the files are written: the device log is
-    // written after the session, and a typo must not cost the run.
-    if (!c.trace.path.empty()) check_parent_folder(s, "path", c.trace.path);
-    if (!c.trace.device_log.empty()) check_parent_folder(s, "device_log", c.trace.device_log);
-    c.trace.rate_set = s.has("rate");
-    c.trace.rate = s.range("rate", c.trace.rate, kTraceRate);
-    c.trace.max_bytes =
-        static_cast<uint64_t>(s.range("max_bytes", static_cast<double>(c.trace.max_bytes), kTraceMaxBytes));
-    if (!c.trace.device_log.empty() && section("loop").has("log_capacity") && c.loop.log_capacity == 0)
-      section("loop").fail("log_capacity", "is 0 but [trace] device_log is set: nothing would be logged");
-  }
+  read_loop(ctx, root, c);
+  read_trace(ctx, root, c);
   c.log_capacity_set = section("loop").has("log_capacity");
   check_run_limits(c);
   return c;
