@@ -1,4 +1,4 @@
-// Coarse collision detection (paper Sec. 6.1; issue 3 item 3) on synthetic
+// Coarse collision detection (paper Sec. 6.1) on synthetic
 // box models: pairs inside the tolerance and not beyond, distances and closest
 // points against the analytic box-box distance, normals from A into B,
 // overlap, rigid invariance, the broad phase against a brute-force sweep.

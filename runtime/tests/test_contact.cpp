@@ -1,4 +1,4 @@
-// Contact clustering and patch geometry (issue 3 item 4) on synthetic box
+// Contact clustering and patch geometry on synthetic box
 // models: separated regions -> separate patches, touching pieces -> one
 // patch, sharp edges split by the normal angle, n from A into B, the
 // triangle lists face each other, the window covers the patch with its origin

@@ -1,4 +1,4 @@
-// The headless OpenGL 4.5 core context (hrt/gl_context.h, issue 10 item 1):
+// The headless OpenGL 4.5 core context (hrt/gl_context.h):
 // made through EGL with no display server, on whatever this machine has (in
 // CI: Mesa's llvmpipe through the surfaceless platform), and shown to be a
 // working context by a round trip through the GPU: a float framebuffer

@@ -1,5 +1,5 @@
 // The GL backend of the depth query (hrt/gl_depth.h) against the CPU
-// backend, the reference (issue 10). Run on whatever context this machine
+// backend, the reference. Run on whatever context this machine
 // gives (in CI Mesa's llvmpipe).
 //
 // Bounds, fixed here before measuring:

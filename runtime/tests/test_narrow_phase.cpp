@@ -1,5 +1,5 @@
 // The piece-pair narrow phase (FCL's own GJK/EPA, collision.cpp) and the
-// piece adjacency (from the bundle's triangle map), issue 7 item 1.
+// piece adjacency (from the bundle's triangle map).
 //
 // References. (1) The separating axis theorem by brute force: for two convex
 // polytopes it is exact on a finite axis set (the face normals of both and
@@ -395,8 +395,7 @@ TEST(NarrowPhase, AdjacencyFromTheTriangleMapAndCutFaces) {
   }
 }
 
-// Explicit finite-difference steps are bounded (issue 7 item 7: a lin_step of
-// 1e-300 m silently gave another force): below 100 x 2^-24 x the largest
+// Explicit finite-difference steps are bounded: below 100 x 2^-24 x the largest
 // coordinate the float32 atlas makes the difference noise; above 10 % of the
 // smaller part (0.1 rad) it is no derivative. 0 stays automatic.
 TEST(SceneOptionsBounds, FiniteDifferenceStepsAreBounded) {

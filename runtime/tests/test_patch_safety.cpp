@@ -1,4 +1,4 @@
-// Safety of the per-patch force (issue 8, cause 6; rules at the top of
+// Safety of the per-patch force (rules at the top of
 // src/contact/frame.cpp): whatever the atlas heights say, a patch gives the
 // force of a depth the convex pieces allow (clamp to delta_bound), and a
 // patch whose n disagrees with its pieces gives none (refusal). Ordinary

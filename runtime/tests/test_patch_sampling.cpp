@@ -1,4 +1,4 @@
-// Per-patch grid resolution (ClusterOptions::auto_resolution, issue 8):
+// Per-patch grid resolution (ClusterOptions::auto_resolution):
 // N grows until the grid texel is at most 1/4 of the bundles' shorter
 // min_wavelength, capped by max_resolution; the depth buffers are reserved
 // for the cap, so the clustering and force stages allocate nothing.

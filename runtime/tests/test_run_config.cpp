@@ -538,7 +538,7 @@ TEST_F(RunConfig, DeviceAndRunConsistencyErrors) {
                "nothing would be logged");
 }
 
-// [run] backend, gl_search, occlusion_steps (issue 10): the three choices,
+// [run] backend, gl_search, occlusion_steps: the three choices,
 // and the GL settings refused where no GL backend runs (as a udp key on a
 // scripted device), the shortcut refused with the GL backend.
 TEST_F(RunConfig, DepthBackendKeys) {

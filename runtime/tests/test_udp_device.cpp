@@ -1,5 +1,5 @@
 // The UDP bridge (docs/udp-protocol.md): the wire format's golden bytes (the
-// same hex strings are asserted by tests/test_udp_client.py against the
+// same hex strings are asserted by tests/integration/test_udp_client.py against the
 // Python client's encoder), the parsers' rejection classes, the order filter,
 // and UdpDevice on real loopback sockets: bad packets dropped and counted,
 // valid ones change the pose read, wrenches answer the client, object poses
@@ -28,7 +28,7 @@ namespace {
 namespace udp = hrt::udp;
 using Bytes = std::vector<uint8_t>;
 
-// Shared with tests/test_udp_client.py and docs/udp-protocol.md.
+// Shared with tests/integration/test_udp_client.py and docs/udp-protocol.md.
 const char* kGoldenPose =
     "48525455010001010700000000000000000000000000e03f9a9999999999b93f9a9999999999c9bf333333333333d33f"
     "00000000000000000000000000000000333333333333e33f9a9999999999e93f0500000001000000";

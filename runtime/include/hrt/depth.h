@@ -329,7 +329,7 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
 // And the force now turns within a fraction of a step at a V's bottom where
 // it used to turn over two steps: a session's linear prediction between
 // frames (the multirate model) follows it less well (on the ball sliding
-// over the strip grating of tests/test_session_physics.py at 100 Hz, RMS
+// over the strip grating of tests/integration/test_session_physics.py at 100 Hz, RMS
 // error 3.22 mN against 2.67 mN with Eq. 7's central differences).
 // The rotations keep Eq. 7's central differences: their kinks include a
 // flat face tilting on a flat face, whose smooth central-difference torque
@@ -343,7 +343,7 @@ DepthGradient compute_depth_gradient(const Model& A, const Pose& pose_a, const M
 // stands for the force over the motion until the next frame has to
 // anticipate (the one-sided gradient keeps its value up to the kink, then
 // turns by the whole slope). Measured on the ball sliding over the strip
-// grating of tests/test_session_physics.py, leaving the kink's part out of
+// grating of tests/integration/test_session_physics.py, leaving the kink's part out of
 // it where the one-sided difference is used makes the multirate prediction
 // worse (RMS error 3.44 mN against 3.22 mN with the turn kept).
 constexpr double kKinkSmoothTurn = 0.02;

@@ -1,4 +1,4 @@
-// Where the penetration query of a frame runs (issue 10): the CPU code of
+// Where the penetration query of a frame runs: the CPU code of
 // hrt/depth.h (the reference), or the GLSL backend of hrt/gl_depth.h. Both
 // compute, for each contact patch of a frame, the same DepthGradient
 // (delta at the 11 configurations of Eq. 7, its gradient and the contact

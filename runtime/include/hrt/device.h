@@ -1,4 +1,4 @@
-// Haptic devices behind one small interface (issue 9, item 6).
+// Haptic devices behind one small interface.
 //
 // A Device reads the pose of its handle and displays a wrench. Implementations:
 //   ScriptedDevice  plays a trajectory file (hrt/trajectory.h), for tests,

@@ -1,4 +1,4 @@
-// The device force loop (issue 9, items 2, 4, 5): a thread at a fixed 1 kHz
+// The device force loop: a thread at a fixed 1 kHz
 // period, asynchronous from the simulation (paper Sec. 6.1, 7.1), that maps
 // the device into the scene, turns the simulation's latest command into a
 // wrench every period, makes it safe and writes it to the device.

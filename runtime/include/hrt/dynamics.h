@@ -1,4 +1,4 @@
-// Probe dynamics (paper Sec. 3.3, 6.1, 7.1; issue 9, item 1): the probe A as a
+// Probe dynamics (paper Sec. 3.3, 6.1, 7.1): the probe A as a
 // 6-DoF rigid body driven by the contact wrench of hrt::frame and a virtual
 // coupling to the device pose (Adams and Hannaford), integrated by linearized
 // backward Euler so that stiff contact stays stable at haptic time steps.

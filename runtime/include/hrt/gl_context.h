@@ -1,4 +1,4 @@
-// A headless OpenGL 4.5 core context through EGL (issue 10, item 1): no
+// A headless OpenGL 4.5 core context through EGL: no
 // window, no display server. Two ways in, tried in this order:
 //   device       EGL_EXT_device_enumeration + EGL_EXT_platform_device: each
 //                EGL device in turn (an NVIDIA GPU, a Mesa render node, Mesa's

@@ -1,4 +1,4 @@
-// The GLSL backend of the penetration query (issue 10; paper Sec. 5.2).
+// The GLSL backend of the penetration query (paper Sec. 5.2).
 //
 // Per frame, for all contact patches at once:
 //   1. upload    the patches' placements and triangle lists (one buffer

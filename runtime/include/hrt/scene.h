@@ -74,7 +74,7 @@ struct ClusterOptions {
   // max_normal_angle_deg, and their contact points on B are closer than
   // track_radius_factor times the previous window's side.
   double track_radius_factor = 0.5;
-  // Sampling (issue 8): with auto_resolution, each patch gets its own grid
+  // Sampling: with auto_resolution, each patch gets its own grid
   // resolution N (>= ForceOptions::resolution, <= max_resolution, the
   // budget) so that its grid texel stays at or below
   // auto_cell_fraction x the smaller quality.min_wavelength of A and B

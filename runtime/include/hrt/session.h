@@ -1,4 +1,4 @@
-// A haptic session (issue 9): the probe A as a rigid body (hrt/dynamics.h)
+// A haptic session: the probe A as a rigid body (hrt/dynamics.h)
 // driven by the contact wrench of hrt::frame, friction and a virtual
 // coupling to the device's target pose; objects B static or kinematic
 // (following trajectories). One step() is one simulation frame.

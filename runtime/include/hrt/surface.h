@@ -1,6 +1,6 @@
 // The surface map of a model: what the depth code needs to evaluate the
 // *reconstructed full surface* on a texel column rather than the literal
-// Eq. 8 of the paper (issue 8, docs/bundle-format.md "Heights").
+// Eq. 8 of the paper (docs/bundle-format.md "Heights").
 //
 // Why. The atlas stores, for a coarse surface point q, a full-surface point
 // f(q) that lies beside q's column along n whenever the bake's ray direction

@@ -1,4 +1,4 @@
-// Pose trajectories (issue 9): the scripted device's input, the kinematic
+// Pose trajectories: the scripted device's input, the kinematic
 // objects B of a scene, and the device poses of a recorded trace.
 //
 // File format (docs/trajectory-format.md): CSV with a header line naming at

@@ -24,7 +24,7 @@
 //     each pair counts for the area over which its pieces overlap as seen
 //     along its normal (area_i, pair_overlap_area: the intersection of the
 //     two pieces' boxes in B's frame, grown by the tolerance, projected
-//     along n_i; continuous in the poses). Issue 8, cause 7: with depth
+//     along n_i; continuous in the poses). With depth
 //     weights alone, the pairs across CoACD's cuts of the demo's ridged
 //     blocks, which overlap only in 3.3 mm strips along bevelled hull faces
 //     tilted by 23.6 degrees, tilted n by 6.8 degrees (delta 0.736 mm
@@ -88,7 +88,7 @@ using collision::ModelGeometry;
 // is edge-on to the surfaces in contact (two textured plates face to face,
 // piece pairs whose separating axis is a cut face's horizontal normal) would
 // take the relief's flanks, tilted 68 degrees from such an n, and rasterize
-// faces millimetres apart (tests/test_fullsurface_depth.py, the gratings;
+// faces millimetres apart (tests/integration/test_fullsurface_depth.py, the gratings;
 // with cos > 0.2 they gave 165 N). Such faces belong to the patch whose n
 // they face (clustering splits normals more than 45 degrees apart, so every
 // face is within 45 + 15 degrees of some patch's n it belongs to).

@@ -3,7 +3,7 @@
 // opposite wrenches on the Bs. Allocates nothing of its own and prints
 // nothing.
 //
-// Safety (issue 8, "cause 6"): whatever the atlas heights say, a patch's
+// Safety: whatever the atlas heights say, a patch's
 // force must be one the coarse geometry allows. After compute_patch_wrench,
 // per patch, with the convex pieces' vertices placed by the poses (never
 // FCL's normals or points, except as axes to test along):
@@ -497,7 +497,7 @@ void apply_patch_safety(const Scene& scene, State& st, int k) {
   // contact (pieces of two plates face to face whose separating axis is a cut
   // face's normal, horizontal) rasterizes faces far apart along n (12.7 mm
   // where the pairs overlap by 0.3 mm: the gratings of
-  // tests/test_fullsurface_depth.py, 165 N before this rule). Twice the own
+  // tests/integration/test_fullsurface_depth.py, 165 N before this rule). Twice the own
   // pairs' bound leaves room for the triangles of a legitimate patch that
   // reach into other pieces' pairs (the clamp below handles those).
   if (patch.covered && std::isfinite(patch.delta) && patch.delta > kRefuseFactor * bound_own) refused = true;

@@ -2,7 +2,7 @@
 //
 // The first problem found is thrown as a BundleError. The checks run in the
 // order of the spec's error classes, which is also the order in which
-// `hbake validate` (hbake/bundle.py, the reference) sorts its problems, so a
+// `hbake validate` (hbake/bundle/validate.py, the reference) sorts its problems, so a
 // bundle with one problem gets the same class from both readers, and the
 // messages use the same wording:
 //   io       bundle directory and manifest.json exist and are readable

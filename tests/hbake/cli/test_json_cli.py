@@ -1,4 +1,4 @@
-"""`--json` of bake, validate and inspect:
+"""`--json` of bake, validate and inspect (batch: tests/hbake/batch/test_batch.py):
 one JSON document on stdout, the documented exit code, and on a user error the one line
 on stderr plus {"ok": false, "error": {class, exit_code, message}} on stdout.
 """
