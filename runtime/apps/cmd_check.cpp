@@ -48,8 +48,8 @@ nlohmann::json summary_json(const hrt::Model& m) {
       {"atlas",
        {{"width", m.atlas.width},
         {"height", m.atlas.height},
-        {"compression", m.manifest.at("files").at("atlas").at("compression")},
-        {"coverage", m.manifest.at("atlas").at("coverage")},
+        {"compression", m.manifest->at("files").at("atlas").at("compression")},
+        {"coverage", m.manifest->at("atlas").at("coverage")},
         {"texel_size", q.texel_size}}},
       {"mass",
        {{"basis", mass.basis},
@@ -66,7 +66,7 @@ nlohmann::json summary_json(const hrt::Model& m) {
         {"min_wavelength", q.min_wavelength},
         {"bbox_diagonal", q.bbox_diagonal}}},
       {"surface", {{"quads", sc.quads}, {"cut_quads", sc.cut}, {"widest_cut", sc.widest_cut}}},
-      {"warnings", m.manifest.at("warnings")},
+      {"warnings", m.manifest->at("warnings")},
   };
 }
 
@@ -97,7 +97,7 @@ void print_text(const hrt::Model& m, const nlohmann::json& s) {
     std::printf(" (--heights mesh sees no surface between their corners, up to %.4g m apart)",
                 sf["widest_cut"].get<double>());
   std::printf("\n");
-  for (const auto& w : m.manifest.at("warnings")) std::printf("warning     %s\n", w.get<std::string>().c_str());
+  for (const auto& w : m.manifest->at("warnings")) std::printf("warning     %s\n", w.get<std::string>().c_str());
   std::printf("ok\n");
 }
 

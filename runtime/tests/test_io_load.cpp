@@ -98,7 +98,7 @@ TEST_F(CubeBundle, LoadsEveryField) {
   EXPECT_DOUBLE_EQ(m.quality.texel_size, a / 20);
   EXPECT_DOUBLE_EQ(m.quality.min_wavelength, a / 10);
   EXPECT_DOUBLE_EQ(m.quality.bbox_diagonal, std::sqrt(3.0) * a);
-  EXPECT_EQ(m.manifest["pieces"]["count"], 2);
+  EXPECT_EQ((*m.manifest)["pieces"]["count"], 2);
 }
 
 TEST_F(CubeBundle, PizCompressionNoCommentMinorVersionAndUnknownFieldsLoad) {

@@ -8,13 +8,14 @@
 
 #include <array>
 #include <cstdint>
+#include <memory>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
-#include <nlohmann/json.hpp>
+#include <nlohmann/json_fwd.hpp>
 
 #include "hrt/math.h"
 #include "hrt/surface.h"
@@ -98,7 +99,10 @@ struct Model {
   // needs to evaluate the reconstructed full surface on a texel column.
   SurfaceMap surface;
 
-  nlohmann::json manifest;  // the whole manifest, for fields not mirrored above
+  // The whole manifest, for fields not mirrored above (set by load_bundle; read it with
+  // <nlohmann/json.hpp>). Behind a pointer so that this header needs only JSON's
+  // forward declarations; shared by copies of the model (it is never modified).
+  std::shared_ptr<const nlohmann::json> manifest;
 };
 
 struct LoadOptions {

@@ -795,15 +795,17 @@ Model load_bundle(const std::string& path, const LoadOptions& opts) {
     }
     return true;
   };
+  nlohmann::json manifest;
   try {
-    model.manifest = nlohmann::json::parse(mbytes, depth_guard);
+    manifest = nlohmann::json::parse(mbytes, depth_guard);
   } catch (const nlohmann::json::exception& e) {
     std::string what = e.what();
     const size_t close = what.find("] ");
     if (close != std::string::npos) what = what.substr(close + 2);
     throw BundleError(BundleErrorClass::schema, mlabel + ": not valid UTF-8 JSON: " + what);
   }
-  const io::ManifestInfo info = io::check_manifest(model.manifest, mlabel);
+  const io::ManifestInfo info = io::check_manifest(manifest, mlabel);
+  model.manifest = std::make_shared<const nlohmann::json>(std::move(manifest));
   model.name = info.source_name;
   model.format_version = info.format_version;
   model.mass = info.mass;

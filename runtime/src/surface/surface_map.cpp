@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 
+#include <nlohmann/json.hpp>
+
 #include "hrt/model.h"
 #include "hrt/surface.h"
 #include "surface/row_span.h"
@@ -31,7 +33,8 @@ void atlas_corners(const Model& model, size_t f, double* ax, double* ay) {
 }
 
 int manifest_gutter(const Model& m) {
-  const nlohmann::json& j = m.manifest;
+  if (!m.manifest) return kDefaultGutter;  // a model built in code
+  const nlohmann::json& j = *m.manifest;
   if (j.is_object() && j.contains("atlas") && j["atlas"].is_object() && j["atlas"].contains("gutter") &&
       j["atlas"]["gutter"].is_number_integer())
     return std::max(1, j["atlas"]["gutter"].get<int>());
