@@ -23,11 +23,7 @@
 //      contact data (n, u, v, window, triangles) are frozen for all 11.
 //      Where a kink of delta lies within a translation step, the steeper
 //      one-sided difference replaces the central one (kink_safe_difference).
-//   4. Eq. 5: (F_u F_v F_n T_u T_v T_n) = -k max(delta, 0) grad delta, i.e. the
-//      force of the energy U = k max(delta, 0)^2 / 2 (Eq. 3 clamped: a patch
-//      with delta <= 0 gives no force); Eq. 6 maps it to the world with the
-//      columns (u v n). Because the rotations are about c_A, T is the torque
-//      on A about c_A (the body torque).
+//   The wrench that follows from the gradient (Eq. 5-6) is hrt/force.h's.
 //
 // Nothing here allocates once DepthScratch is reserved for the largest
 // resolution in use, and nothing prints: warnings are counted in a
