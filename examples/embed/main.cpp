@@ -7,6 +7,7 @@
 #include <exception>
 
 #include <hrt/hrt.h>
+#include <nlohmann/json.hpp>  // the output; hrt/hrt.h does not pull in the JSON library
 
 static hrt::Pose pose_from(char** v) {
   hrt::Pose p;
