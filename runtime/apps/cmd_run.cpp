@@ -451,7 +451,7 @@ int run(const RunFlags& f) {
 
   hrt::TraceWriter trace;
   try {
-    if (!cfg.trace.path.empty()) trace.open(cfg.trace.path, cfg);
+    if (!cfg.trace.path.empty()) trace.open(cfg.trace.path, cfg.trace);
   } catch (const std::runtime_error& e) {
     throw Exit(kOutput, std::string("error: ") + e.what());
   }

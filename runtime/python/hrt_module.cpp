@@ -423,7 +423,7 @@ void bind_runner_init(nb::class_<PyRunner>& cls) {
         std::unique_ptr<hrt::TraceWriter> writer;
         if (!runner->config().trace.path.empty()) {
           writer = std::make_unique<hrt::TraceWriter>();
-          writer->open(runner->config().trace.path, runner->config());
+          writer->open(runner->config().trace.path, runner->config().trace);
         }
         new (self) PyRunner();
         self->runner = std::move(runner);

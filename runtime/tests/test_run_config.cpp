@@ -670,7 +670,7 @@ TEST_F(Trace, HeaderIsTheSpecsColumnList) {
   ASSERT_GT(spec.size(), 40u);
   hrt::TraceWriter w;
   const std::string path = (dir_ / "t.csv").string();
-  w.open(path, hrt::RunConfig{});
+  w.open(path, hrt::TraceConfig{});
   w.close();
   const std::string text = read_text(path);
   ASSERT_FALSE(text.empty());
@@ -693,7 +693,7 @@ TEST_F(Trace, ValuesRoundTripInTheSpecsColumns) {
   for (int i = 0; i < 6; ++i) d.output[i] = -0.1 * (i + 1) / 3.0;
   {
     hrt::TraceWriter w;
-    w.open(path, hrt::RunConfig{});
+    w.open(path, hrt::TraceConfig{});
     w.row(hrt::TraceRow{&f1, &d});
     w.row(hrt::TraceRow{&f2, &d});
     w.close();
@@ -775,7 +775,7 @@ TEST_F(Trace, ReplaysAsADeviceTrajectory) {
   std::vector<hrt::Pose> poses;
   {
     hrt::TraceWriter w;
-    w.open(path, hrt::RunConfig{});
+    w.open(path, hrt::TraceConfig{});
     hrt::SessionFrame f = sample_frame(1.0);
     hrt::DeviceTarget d;
     for (int i = 0; i < 4; ++i) {
@@ -803,7 +803,7 @@ TEST_F(Trace, NoFileAtThePathUntilClose) {
   const hrt::DeviceTarget d;
   hrt::TraceWriter w;
   EXPECT_FALSE(w.is_open());
-  w.open(path.string(), hrt::RunConfig{});
+  w.open(path.string(), hrt::TraceConfig{});
   EXPECT_TRUE(w.is_open());
   w.row(hrt::TraceRow{&f, &d});
   EXPECT_FALSE(fs::exists(path));
@@ -822,7 +822,7 @@ TEST_F(Trace, AnUnclosedWriterRemovesItsPartial) {
   const hrt::DeviceTarget d;
   {
     hrt::TraceWriter w;
-    w.open(path.string(), hrt::RunConfig{});
+    w.open(path.string(), hrt::TraceConfig{});
     w.row(hrt::TraceRow{&f, &d});
     ASSERT_TRUE(fs::exists(partial));
   }
@@ -834,7 +834,7 @@ TEST_F(Trace, IoErrorsNameThePath) {
   const std::string path = (dir_ / "no_such_folder" / "t.csv").string();
   hrt::TraceWriter w;
   try {
-    w.open(path, hrt::RunConfig{});
+    w.open(path, hrt::TraceConfig{});
     FAIL() << "no error";
   } catch (const std::runtime_error& e) {
     EXPECT_EQ(std::string(e.what()).rfind(path + ": ", 0), 0u) << e.what();
@@ -845,7 +845,7 @@ TEST_F(Trace, IoErrorsNameThePath) {
   for (const std::string special : {std::string("/dev/null"), dir_.string()}) {
     hrt::TraceWriter w3;
     try {
-      w3.open(special, hrt::RunConfig{});
+      w3.open(special, hrt::TraceConfig{});
       FAIL() << special << ": no error";
     } catch (const std::runtime_error& e) {
       EXPECT_EQ(std::string(e.what()).rfind(special + ": exists and is not a regular file", 0), 0u) << e.what();
@@ -857,7 +857,7 @@ TEST_F(Trace, IoErrorsNameThePath) {
   // PATH but the folder.
   const fs::path folder = dir_ / "taken.csv";
   hrt::TraceWriter w2;
-  w2.open(folder.string(), hrt::RunConfig{});
+  w2.open(folder.string(), hrt::TraceConfig{});
   fs::create_directories(folder / "inside");
   try {
     w2.close();

@@ -23,10 +23,9 @@
 //
 // Session time (Device::read/write, DeviceTarget::time, the log, the ramps
 // and the watchdog) is clock.now() as it is: give the loop a clock that reads
-// session time (a ManualClock in lockstep; in real time a SteadyClock less
-// its value at the start, as `hrt run` does), so the simulation and the
-// device agree on t. The thread's deadlines are on CLOCK_MONOTONIC whatever
-// the clock.
+// session time (hrt/clock.h: a ManualClock in lockstep, a SessionClock in
+// real time, as `hrt run` does), so the simulation and the device agree on
+// t. The thread's deadlines are on CLOCK_MONOTONIC whatever the clock.
 //
 // The envelope is the product of three ramps in [0, 1], each linear in
 // session time, and a fourth at stop(). It scales the device's limits, so
@@ -54,32 +53,11 @@
 #include <thread>
 #include <vector>
 
+#include "hrt/clock.h"
 #include "hrt/device.h"
 #include "hrt/math.h"
 
 namespace hrt {
-
-// ---------------------------------------------------------------------------
-// Clock (injectable, so the watchdog is tested without sleeping)
-// ---------------------------------------------------------------------------
-class Clock {
- public:
-  virtual ~Clock() = default;
-  virtual double now() const noexcept = 0;  // seconds, monotonic
-};
-class SteadyClock : public Clock {  // CLOCK_MONOTONIC
- public:
-  double now() const noexcept override;
-};
-class ManualClock : public Clock {  // set by the caller (lockstep, tests)
- public:
-  double now() const noexcept override { return t_.load(std::memory_order_acquire); }
-  void set(double t) noexcept { t_.store(t, std::memory_order_release); }
-  void advance(double dt) noexcept { set(now() + dt); }
-
- private:
-  std::atomic<double> t_{0.0};
-};
 
 // ---------------------------------------------------------------------------
 // TripleBuffer: one writer, one reader, wait-free, no allocation after

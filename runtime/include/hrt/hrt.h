@@ -24,11 +24,13 @@
 #include "hrt/depth_backend.h"
 #include "hrt/scene.h"        // Scene, SceneOptions, State, frame()
 #include "hrt/dynamics.h"     // probe dynamics and virtual coupling
+#include "hrt/clock.h"        // session time: manual (lockstep) or monotonic
 #include "hrt/trajectory.h"   // scripted device paths
 #include "hrt/device.h"       // device kinds
 #include "hrt/device_loop.h"  // the 1 kHz device loop and its per-tick bounds
 #include "hrt/session.h"      // a simulation session (probe dynamics, coupling, materials)
 #include "hrt/runner.h"       // a scene file's session against its device, as `hrt run` runs it
 #include "hrt/run_config.h"   // scene files of `hrt run` (TOML)
+#include "hrt/trace.h"        // the session trace and device log (CSV)
 #include "hrt/files.h"
 #include "hrt/gl_depth.h"  // the GL depth backend (EGL, headless)

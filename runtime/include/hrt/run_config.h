@@ -1,5 +1,5 @@
-// Scene files of `hrt run` (TOML, read with toml++; spec: docs/scene-format.md)
-// and the trace `hrt run` writes (CSV; spec: docs/trace-format.md).
+// Scene files of `hrt run` (TOML, read with toml++; spec: docs/scene-format.md).
+// The trace a session writes is hrt/trace.h.
 //
 // load_run_config parses and checks the whole file before anything runs:
 // every key is known (a typo is an error, not a silent default), every value
@@ -10,7 +10,6 @@
 #pragma once
 
 #include <cstdint>
-#include <cstdio>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -21,6 +20,7 @@
 #include "hrt/device_loop.h"
 #include "hrt/scene.h"
 #include "hrt/session.h"
+#include "hrt/trace.h"
 
 namespace hrt {
 
@@ -55,19 +55,6 @@ struct DeviceConfig {
        dof_actuated_set = false;
 };
 
-struct TraceConfig {
-  std::string path;        // "" = no trace
-  std::string device_log;  // per-device-tick CSV ("" = none)
-  // Where each path came from, for messages: the scene key or the flag.
-  std::string path_key = "trace.path", device_log_key = "trace.device_log";
-  // Most rows per second of session time (0: every simulation frame). Left
-  // out: kDefaultRealtimeTraceRate in real time, every frame in lockstep.
-  double rate = 0.0;
-  bool rate_set = false;
-  // The trace stops growing here (a warning; the session goes on).
-  uint64_t max_bytes = uint64_t{1} << 30;
-};
-
 // Limits on what a session allocates and writes (docs/scene-format.md,
 // "Limits"), each checked before anything is allocated: with every value the
 // reader accepts, `hrt run` and `hrt query` stay under 1 GiB of memory.
@@ -77,9 +64,6 @@ constexpr size_t kMaxLogCapacity = 2'000'000;
 // Real-time period errors kept for the jitter summary (8 bytes each): the
 // first 4,194,304 ticks (70 min at 1 kHz).
 constexpr size_t kMaxJitterSamples = size_t{1} << 22;
-// Real-time trace rows per second of session time unless [trace] rate says.
-constexpr double kDefaultRealtimeTraceRate = 1000.0;
-
 struct RunConfig {
   std::string file;                   // the scene file
   std::vector<ObjectConfig> objects;  // [0] = the probe
@@ -133,43 +117,5 @@ void check_run_outputs(const RunConfig& config);
 // ranges of the scene file's [device] keys; throws DeviceError naming
 // `source` and the limit.
 void check_device_limits(const DeviceInfo& info, const std::string& source);
-
-// Trace writer (docs/trace-format.md): one row per simulation frame. Writes
-// to PATH.partial and renames to PATH on close(), so a crash never leaves a
-// trace that looks complete. Throws std::runtime_error("PATH: ...") on I/O errors.
-struct TraceRow {
-  const SessionFrame* frame = nullptr;
-  const DeviceTarget* device = nullptr;  // device pose and the wrench last written to it
-};
-
-//
-// The rows follow config.trace: at most `rate` rows per second of session
-// time (a frame is written when its t is at least 1 / rate after the last
-// written row's; 0 writes every frame), and none once the file would pass
-// `max_bytes` (truncated() is then true: the caller warns; the trace stays
-// a valid trace of the session's start).
-class TraceWriter {
- public:
-  TraceWriter() = default;
-  ~TraceWriter();  // an unclosed writer removes its .partial file
-  void open(const std::string& path, const RunConfig& config);
-  // True when the row was written (false: thinned out by the rate, or past max_bytes).
-  bool row(const TraceRow& r);
-  void close();
-  bool is_open() const { return file_ != nullptr; }
-  uint64_t rows() const { return rows_; }
-  uint64_t bytes() const { return bytes_; }
-  bool truncated() const { return truncated_; }
-
- private:
-  std::string path_, partial_;
-  std::FILE* file_ = nullptr;
-  double min_interval_ = 0.0, last_t_ = 0.0;
-  uint64_t max_bytes_ = UINT64_MAX, bytes_ = 0, rows_ = 0;
-  bool truncated_ = false;
-};
-
-// Per-tick device log (DeviceLoop::log), same conventions; written at the end.
-void write_device_log(const std::string& path, const DeviceLoop& loop);
 
 }  // namespace hrt

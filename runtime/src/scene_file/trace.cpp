@@ -15,7 +15,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "hrt/run_config.h"
+#include "hrt/trace.h"
 
 namespace hrt {
 
@@ -132,14 +132,14 @@ TraceWriter::~TraceWriter() {
   }
 }
 
-void TraceWriter::open(const std::string& path, const RunConfig& config) {
+void TraceWriter::open(const std::string& path, const TraceConfig& config) {
   // The columns are the same for every scene (one reader reads every trace);
   // the configuration does not change them.
   if (file_) throw std::logic_error("TraceWriter::open(" + path + "): already open on " + path_);
   path_ = path;
   partial_ = path + ".partial";
-  min_interval_ = config.trace.rate > 0 ? 1.0 / config.trace.rate : 0.0;
-  max_bytes_ = config.trace.max_bytes;
+  min_interval_ = config.rate > 0 ? 1.0 / config.rate : 0.0;
+  max_bytes_ = config.max_bytes;
   bytes_ = rows_ = 0;
   truncated_ = false;
   file_ = open_partial(path_, partial_);

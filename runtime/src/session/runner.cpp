@@ -12,17 +12,6 @@
 namespace hrt {
 namespace {
 
-// Session time: the monotonic clock since the Runner was opened.
-class SessionClock : public Clock {
- public:
-  SessionClock() : t0_(base_.now()) {}
-  double now() const noexcept override { return base_.now() - t0_; }
-
- private:
-  SteadyClock base_;
-  double t0_;
-};
-
 std::unique_ptr<Device> make_device(const RunConfig& cfg) {
   const DeviceConfig& d = cfg.device;
   if (d.type == "scripted")
