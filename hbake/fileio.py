@@ -1,4 +1,5 @@
-"""Reading input files safely: regular files only, with a size limit.
+"""Reading input files safely (regular files only, with a size limit) and writing outputs
+atomically.
 
 A path may name a FIFO (``open`` blocks until a writer comes, ``read`` never ends), a
 character device such as ``/dev/zero`` (endless bytes) or a directory, directly or
@@ -6,6 +7,8 @@ through a symlink. ``read_regular`` opens without blocking, checks the opened fi
 itself (``fstat``, so a file swapped after a check cannot slip through) and reads
 only a regular file of at most ``limit`` bytes. Failures are ``OSError``s whose
 ``strerror`` reads well after "cannot read: ".
+
+Outputs are written through a temporary sibling renamed into place (``write_atomic``).
 """
 from __future__ import annotations
 
@@ -14,9 +17,10 @@ import json
 import os
 import stat
 from pathlib import Path
+from typing import Callable
 
 __all__ = ["NotRegularFileError", "FileTooLargeError", "read_regular", "check_regular",
-           "file_kind"]
+           "file_kind", "write_atomic", "write_json_atomic"]
 
 
 class NotRegularFileError(OSError):
@@ -81,19 +85,31 @@ def read_regular(path: str | os.PathLike, limit: int | None = None) -> bytes:
     return data
 
 
-def write_json_atomic(path: Path | str, data: dict, what: str) -> None:
-    """``data`` as sorted, indented JSON at ``path``, through a temporary sibling renamed
-    into place, so that a reader never sees half a file. An OSError becomes one line
-    naming ``what`` and the path (exit 6, the output-unwritable class)."""
+def write_atomic(path: Path | str, write: Callable[[Path], None], what: str = "",
+                 suffix: str = ".tmp") -> Path:
+    """Write ``path`` through a temporary sibling: ``write(tmp)`` fills it, then it is
+    renamed into place, so that a reader never sees half a file and a failure leaves no
+    file behind (the temporary is removed whatever happens). ``suffix`` ends the
+    temporary's name (a writer that picks its format from the name needs the real one).
+    An OSError becomes one line naming ``what`` and the path (exit 6, the
+    output-unwritable class)."""
     from hbake.errors import OutputUnwritableError
 
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}{suffix}")
     try:
-        tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+        write(tmp)
         os.replace(tmp, path)
     except OSError as exc:
-        raise OutputUnwritableError(f"{what} {path}: {exc.strerror or exc}") from None
+        prefix = f"{what} " if what else ""
+        raise OutputUnwritableError(f"{prefix}{path}: {exc.strerror or exc}") from None
     finally:
         if tmp.exists():
             tmp.unlink()
+    return path
+
+
+def write_json_atomic(path: Path | str, data: dict, what: str) -> None:
+    """``data`` as sorted, indented JSON at ``path`` (write_atomic)."""
+    text = json.dumps(data, indent=2, sort_keys=True) + "\n"
+    write_atomic(path, lambda tmp: tmp.write_text(text, encoding="utf-8"), what)

@@ -353,6 +353,3 @@ def generate_command(name, path):
         sys.exit(6)
     click.echo(f"{path}: {name}, {len(mesh.faces):,} triangles (meters)")
 
-
-if __name__ == "__main__":  # pragma: no cover
-    main()

@@ -55,6 +55,7 @@ import trimesh
 
 from hbake.errors import HbakeError, InputInvalidError, InputMissingError, OutputExistsError, \
     OutputUnwritableError, EXIT_TEXTURE_PARAMETERS
+from hbake.fileio import write_atomic
 
 PATTERNS = ("ridges", "grooves", "knurl", "bumps", "noise")
 PROFILES = ("sine", "trapezoid", "triangle")
@@ -579,13 +580,5 @@ def texture_file(src: Path, dst: Path, s: TextureSettings, force: bool = False,
     data = trimesh.Trimesh(res.vertices, res.faces, process=False).export(file_type=ext[1:])
     if isinstance(data, str):
         data = data.encode()
-    tmp = parent / f".{dst.name}.tmp"
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, dst)
-    except OSError as exc:
-        raise OutputUnwritableError(f"{dst}: {exc.strerror}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    write_atomic(dst, lambda tmp: tmp.write_bytes(data))
     return res

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from hbake.errors import HbakeError, InputInvalidError, InputMissingError, OutputUnwritableError
+from hbake.fileio import write_atomic
 
 FIGURES = ("fig7", "fig8", "fig9", "scene")
 #: Figures made when --figure is not given: those that need nothing but the trace.
@@ -131,18 +132,13 @@ def _pyplot():
 
 
 def _save(fig, path: Path):
-    tmp = path.with_name(f".{path.name}.tmp.png")
     try:
         # Metadata without the software version and date: the same trace, the same bytes.
-        fig.savefig(tmp, dpi=DPI, metadata={"Software": None})
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise OutputUnwritableError(f"{path}: {exc.strerror}") from None
+        # The temporary ends in .png: savefig picks the format from the name.
+        return write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=DPI, metadata={"Software": None}),
+                            suffix=".tmp.png")
     finally:
-        if tmp.exists():
-            tmp.unlink()
         _pyplot().close(fig)
-    return path
 
 
 def fig7(tr: Trace, path: Path, title: str | None = None) -> Path:
