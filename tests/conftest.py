@@ -31,3 +31,14 @@ def session_bakes(tmp_path_factory) -> dict:
     baked once per session."""
     root = Path(tmp_path_factory.getbasetemp() / "sessions")
     return {n: S.bake(n, root) for n in ("tip", "block", "slab")}
+
+
+#: Per-test limit of the sweeps behind the slow marker (pyproject.toml's `timeout`, 15
+#: minutes, is for the default suite; one slow test bakes a shared model for minutes).
+SLOW_TIMEOUT_S = 3600
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.get_closest_marker("slow") and not item.get_closest_marker("timeout"):
+            item.add_marker(pytest.mark.timeout(SLOW_TIMEOUT_S))
