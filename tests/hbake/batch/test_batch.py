@@ -259,6 +259,10 @@ def dask_cluster():
     distributed = pytest.importorskip("distributed")
     import logging
 
+    # The nannies set their pre-spawn environment (OMP_NUM_THREADS=1, MALLOC_TRIM_THRESHOLD_,
+    # ...) in this process's os.environ before spawning a worker, and leave it there: every
+    # later test and the programs it runs would bake with one OpenMP thread. Restored after.
+    saved = dict(os.environ)
     with dask.config.set({"distributed.scheduler.allowed-failures": 0,
                           "distributed.scheduler.worker-saturation": 1.0}):
         cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
@@ -269,6 +273,8 @@ def dask_cluster():
         finally:
             client.close()
             cluster.close()
+            os.environ.clear()
+            os.environ.update(saved)
 
 
 def _executing(dask_worker) -> tuple[int, list[str]]:
