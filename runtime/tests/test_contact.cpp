@@ -9,6 +9,7 @@
 #include <cmath>
 #include <random>
 
+#include "contact/scratch.h"
 #include "hrt/scene.h"
 #include "test_contact_models.h"
 
@@ -423,12 +424,12 @@ TEST(Contact, PatchIdentityEndsWhenContactBreaks) {
   run_contacts(scene, st);
   ASSERT_EQ(st.num_patches, 1);
   const uint64_t id0 = st.patch_ids[0];
-  st.tracks[0].warned = true;
+  st.scratch->tracks[0].warned = true;
   st.poses[0] = m.above(0.6e-3);
   run_contacts(scene, st);
   ASSERT_EQ(st.num_patches, 1);
   EXPECT_EQ(st.patch_ids[0], id0);
-  EXPECT_TRUE(st.tracks[0].warned);
+  EXPECT_TRUE(st.scratch->tracks[0].warned);
   st.poses[0] = m.above(5e-3);  // lifted off
   run_contacts(scene, st);
   EXPECT_EQ(st.num_patches, 0);
@@ -436,7 +437,7 @@ TEST(Contact, PatchIdentityEndsWhenContactBreaks) {
   run_contacts(scene, st);
   ASSERT_EQ(st.num_patches, 1);
   EXPECT_NE(st.patch_ids[0], id0);
-  EXPECT_FALSE(st.tracks[0].warned);
+  EXPECT_FALSE(st.scratch->tracks[0].warned);
 }
 
 // n is the weighted mean of the pair normals (A into B) with weights

@@ -11,6 +11,7 @@
 #include <random>
 #include <string>
 
+#include "contact/scratch.h"
 #include "hrt/depth.h"
 #include "hrt/scene.h"
 #include "test_contact_models.h"
@@ -132,7 +133,7 @@ TEST(DeepFallback, FlippedPairKeepsItsAxisAndTheForceIsTheGradientOfItsEnergy) {
     hrt::frame(scene, st);
     ASSERT_EQ(st.num_pairs, 1) << what;
     EXPECT_GT(st.pairs[0].n.z(), 0.99) << what << ": the pieces' shortest way apart is now down";
-    ASSERT_TRUE(st.pair_flipped[0]) << what;
+    ASSERT_TRUE(st.scratch->pair_flipped[0]) << what;
     ASSERT_EQ(st.num_deep, 1) << what;
     EXPECT_NEAR((st.deep_axis[1] - (-Vec3::UnitZ())).norm(), 0.0, 1e-12) << what;
     EXPECT_NEAR(st.deep_overlap[1], depth, 1e-9) << what;

@@ -12,6 +12,7 @@
 #include <stdexcept>
 #include <vector>
 
+#include "contact/scratch.h"
 #include "hrt/scene.h"
 #include "parallel/task_pool.h"
 #include "synthetic.h"
@@ -94,8 +95,8 @@ TEST(ParallelFrame, ThreadsGiveTheSerialResultBitForBit) {
       hrt::Scene scene1({&box, &box, &box}, serial);
       hrt::Scene scene2({&box, &box, &box}, par);
       hrt::State ref(scene1), st(scene2);
-      EXPECT_EQ(ref.pool, nullptr);
-      ASSERT_NE(st.pool, nullptr);
+      EXPECT_EQ(ref.scratch->pool, nullptr);
+      ASSERT_NE(st.scratch->pool, nullptr);
       ref.poses[2] = st.poses[2] = hrt_test::pose_at(hrt::Vec3(0.045, 0, 0));
       for (const hrt::Pose& p : poses) {
         ref.poses[0] = st.poses[0] = p;

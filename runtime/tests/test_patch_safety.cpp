@@ -9,6 +9,7 @@
 #include <random>
 #include <string>
 
+#include "contact/scratch.h"
 #include "hrt/depth.h"
 #include "hrt/force.h"
 #include "hrt/scene.h"
@@ -237,7 +238,7 @@ TEST(PatchSafety, WrongWayNormalIsRefused) {
   ASSERT_EQ(st.num_patches, 1);
   hrt::ContactPatch& p = st.patches[0];
   // Its own n: accepted.
-  hrt::compute_patch_wrench(a, st.poses[0], b, st.poses[1], p, scene.options().force, st.depth);
+  hrt::compute_patch_wrench(a, st.poses[0], b, st.poses[1], p, scene.options().force, st.scratch->depth);
   hrt::apply_patch_safety(scene, st, 0);
   EXPECT_FALSE(p.refused);
   EXPECT_FALSE(p.clamped);
@@ -256,7 +257,7 @@ TEST(PatchSafety, WrongWayNormalIsRefused) {
   p.window.cell = cell;
   p.window.resolution = scene.options().force.resolution;
   p.window.origin = Vec3(0.01 - 25 * cell, -25 * cell, 0.0);
-  hrt::compute_patch_wrench(a, st.poses[0], b, st.poses[1], p, scene.options().force, st.depth);
+  hrt::compute_patch_wrench(a, st.poses[0], b, st.poses[1], p, scene.options().force, st.scratch->depth);
   ASSERT_TRUE(p.covered);
   EXPECT_NEAR(p.delta, 0.02 - delta0, 1e-6);  // A's top minus the plate's bottom
   ASSERT_GT(p.force.norm(), 1.0);             // 20 N into the plate before the check

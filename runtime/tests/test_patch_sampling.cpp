@@ -6,6 +6,7 @@
 
 #include <algorithm>
 
+#include "contact/scratch.h"
 #include "hrt/depth.h"
 #include "hrt/force.h"
 #include "hrt/scene.h"
@@ -52,7 +53,7 @@ TEST(PatchSampling, AutoResolutionKeepsTheTexelBelowAQuarterWavelength) {
     hrt::compute_pair_overlaps(scene, st);
     for (int k = 0; k < st.num_patches; ++k) {
       hrt::ContactPatch& p = st.patches[static_cast<size_t>(k)];
-      hrt::compute_patch_wrench(box, st.poses[0], box, st.poses[1], p, scene.options().force, st.depth);
+      hrt::compute_patch_wrench(box, st.poses[0], box, st.poses[1], p, scene.options().force, st.scratch->depth);
       hrt::apply_patch_safety(scene, st, k);
     }
     EXPECT_EQ(hrt::synth::allocation_count(), before) << "budget " << budget;

@@ -8,9 +8,12 @@
 //
 // State: everything that changes from frame to frame, preallocated when it is
 // made from a Scene so that frame() allocates nothing of its own (see the
-// note on FCL below): poses, the piece pairs found by collision detection,
-// the contact patches, the net wrench on A and the opposite wrenches on every
-// B, per-stage timings and warning counters.
+// note on FCL below). Its public members are what a caller sets (poses, the
+// depth backend) or reads: the piece pairs found by collision detection, the
+// contact patches, the net wrench on A and the opposite wrenches on every B,
+// the deep fallback, per-stage timings and warning counters. The stages'
+// scratch (tracks, union-find, marks, depth buffers, the thread pool) sits
+// behind State::scratch, internal (src/contact/scratch.h).
 //
 // One frame (Sec. 3.3, steps 1-3), frame(scene, state):
 //   1. collision: FCL distance queries between the pieces of A and the pieces
@@ -122,8 +125,6 @@ namespace collision {
 class World;  // FCL geometry of the scene (src/collision/collision.h)
 }
 
-class TaskPool;  // src/parallel/task_pool.h
-
 class Scene {
  public:
   // objects[0] is the probe A; at least two objects; no null pointer. The
@@ -166,25 +167,6 @@ struct PiecePair {
   bool fallback_normal = false;  // points (nearly) coincided: n from B's face planes
 };
 
-// Identity of a patch across frames. After clustering, each new patch is
-// matched greedily (closest first) to a patch of the previous frame on the
-// same B whose normal is within max_normal_angle_deg and whose contact point
-// on B is within track_radius_factor x its window side; a match keeps the id,
-// the tangent u (projected onto the new plane), the texel size (hysteresis)
-// and the once-per-lifetime warning flag; an unmatched patch gets a new id.
-// Stored in B's object frame so that it follows B when B moves. After
-// cluster_pairs, State::tracks[k] is the track of State::patches[k].
-struct PatchTrack {
-  uint64_t id = 0;
-  int object_b = -1;
-  Vec3 p_b_local = Vec3::Zero();
-  Vec3 n_local = Vec3::UnitZ();
-  Vec3 u_local = Vec3::UnitX();
-  double cell = 0.0;
-  double side = 0.0;    // window side N * cell, m
-  bool warned = false;  // undersampling warning counted for this patch's lifetime
-};
-
 // Wall-clock time of the last frame's stages, microseconds (steady_clock).
 struct StageTimings {
   double collision_us = 0.0;
@@ -209,8 +191,11 @@ struct Warnings {
   DepthWarnings depth;                 // undersampled patches, uncovered FD configurations
 };
 
+struct FrameScratch;  // the stages' internal scratch (src/contact/scratch.h)
+
 struct State {
-  // Preallocates everything for `scene`; poses start at identity.
+  // Preallocates everything for `scene` (the scratch included); poses start
+  // at identity.
   explicit State(const Scene& scene);
   ~State();
   State(const State&) = delete;
@@ -223,10 +208,9 @@ struct State {
   int num_pairs = 0;
   std::vector<ContactPatch> patches;  // capacity max_patches; the first num_patches are valid
   int num_patches = 0;
-  std::vector<uint64_t> patch_ids;    // patch_ids[k]: tracking id of patches[k]
-  std::vector<int> patch_first_pair;  // internal: pairs of patch k, grouped (see pair_order)
-  std::vector<int> patch_pair_count;
-  std::vector<int> pair_order;  // pair indices grouped by patch
+  // patch_ids[k]: tracking id of patches[k], kept across frames while the
+  // contact lasts (ClusterOptions::track_radius_factor); a new contact gets a new id.
+  std::vector<uint64_t> patch_ids;
 
   Vec3 force = Vec3::Zero();   // net force of the patches on A, world, N
   Vec3 torque = Vec3::Zero();  // net torque of the patches on A about its centre of mass, world, N m
@@ -252,72 +236,15 @@ struct State {
   Warnings warnings;
   uint64_t frame_count = 0;
 
-  // Scratch (internal, reused): previous frame's tracks, union-find, marks.
-  std::vector<PatchTrack> tracks, next_tracks;
-  int num_tracks = 0;
-  uint64_t next_track_id = 1;
-  std::vector<int> uf_parent;        // per pair (capacity of `pairs`)
-  std::vector<double> pair_weight;   // per pair
-  std::vector<double> pair_overlap;  // per pair: its pieces' overlap along its own n (safety checks)
-  // Per pair (deep fallback, frame.cpp): the axis its penetration is judged
-  // along (its n, or the remembered one when n flipped), the pieces' overlap
-  // along it, whether it flipped; sized to `pairs` by frame().
-  std::vector<Vec3> pair_axis;
-  std::vector<double> pair_axis_overlap;
-  std::vector<char> pair_flipped;
-  std::vector<uint64_t> pair_key;  // (object, piece_a, piece_b)
-  std::vector<int> pair_sort;      // pair indices sorted by key
-  // The pairs of the last frame, sorted by key, with the axis each was judged
-  // along, in B's frame (a pair present in consecutive frames keeps it when
-  // its n turns by more than 90 degrees: the probe went past the middle of B's piece).
-  std::vector<uint64_t> memory_key;
-  std::vector<Vec3> memory_axis;
-  int num_memory = 0;
-  // Per object: A had no pair with it in the last frame, and A's pose in its
-  // frame then (a contact that starts deep is judged by which side A came from).
-  std::vector<char> free_last;
-  std::vector<Pose> free_pose;
-  std::vector<int> pair_cluster;  // per pair: cluster id
-  std::vector<double> cluster_weight;
-  std::vector<int> cluster_patch;  // cluster -> patch index, -1 when dropped
-  std::vector<int> cluster_order;
-  std::vector<int> candidates;
-  std::vector<uint32_t> face_mark_a, face_mark_b;  // per coarse face: stamp of the last patch that took it
-  uint32_t face_stamp = 0;
-  std::vector<uint32_t> piece_mark_a, piece_mark_b;
-  std::vector<int> piece_list_a, piece_list_b;         // unique pieces of one patch
-  std::vector<uint32_t> safety_mark_a, safety_mark_b;  // per piece: stamp of the patch whose triangles it lists
-  uint32_t safety_stamp = 0;
-  std::vector<uint32_t> vertex_stamp_a, vertex_stamp_b;  // per coarse vertex: stamp of its cached projection
-  std::vector<double> vertex_proj_a, vertex_proj_b;      // 3 per coarse vertex: (u, v) and height of one patch
-  std::vector<double> tri_box_a, tri_box_b;              // 4 per triangle of one patch: its (u, v) box
-  std::vector<char> track_taken;                         // per previous track, during matching
-  std::vector<double> target_cell;                       // per object: auto-resolution texel target (0 = none)
-  DepthScratch depth;
   // Where the depth query runs (hrt/depth_backend.h; non-owning, the caller
   // keeps it alive): null means the CPU code inline, one patch at a time.
   // With a backend, frame() hands it all patches of the frame at once.
   DepthBackend* depth_backend = nullptr;
-  std::vector<DepthJob> depth_jobs;          // capacity max_patches (frame() with a backend)
-  std::vector<DepthGradient> depth_results;  // capacity max_patches
-  // SceneOptions::threads > 1: the pool and one DepthScratch per pool thread
-  // but the caller's (which uses `depth`), reserved like it.
-  std::unique_ptr<TaskPool> pool;
-  std::vector<DepthScratch> pool_depth;
-  std::vector<int> pool_order;    // capacity max_patches: the patches, costliest first
-  std::vector<double> pool_cost;  // capacity max_patches: their cost estimates
-  // With the pool, detect_pairs' narrow phase: the piece pairs the box tests
-  // passed, in the serial loop's order, and their results.
-  struct NarrowJob {
-    int b = 0, piece_a = 0, piece_b = 0;
-    double tolerance = 0, gjk_tolerance = 0;
-    bool ok = false, fallback = false;
-    double d = 0;
-    Vec3 p_a = Vec3::Zero(), p_b = Vec3::Zero(), n = Vec3::UnitZ();
-  };
-  std::vector<NarrowJob> narrow_jobs;
-  std::vector<Eigen::Isometry3d> narrow_b_from_a;  // per object, this frame
-  void resize_pair_scratch(size_t n);              // the per-pair scratch above, for n pairs
+
+  // Internal (src/contact/scratch.h): the stages' buffers, reused every
+  // frame, and what they carry from one frame to the next (patch tracks, the
+  // deep fallback's pair memory). Allocated with the State.
+  std::unique_ptr<FrameScratch> scratch;
 };
 
 // One haptic frame: collision -> clustering -> per-patch wrench -> sums.
@@ -332,8 +259,9 @@ void cluster_pairs(const Scene& scene, State& state);
 // clamped and delta_force, zeroes or clamps its force and torque, counts
 // Warnings::refused_patches / clamped_patches. Exposed for tests and tools.
 void apply_patch_safety(const Scene& scene, State& state, int k);
-// Fills state.pair_overlap for this frame's pairs (frame() calls it before
-// the patches; a caller of apply_patch_safety alone calls it first).
+// Fills the pairs' overlaps along their own normals, in the scratch, for
+// this frame's pairs (frame() calls it before the patches; a caller of
+// apply_patch_safety alone calls it first).
 void compute_pair_overlaps(const Scene& scene, State& state);
 
 }  // namespace hrt

@@ -1,6 +1,7 @@
 // Coarse collision detection on the convex pieces (paper Sec. 6.1): geometry
 // built once per Scene, and the per-frame pair query (detect_pairs).
 #include "collision/collision.h"
+#include "contact/scratch.h"
 #include "parallel/task_pool.h"
 
 #include <algorithm>
@@ -743,17 +744,18 @@ void query_tree(const TreeNode* node, const Vec3& lo, const Vec3& hi, int* out, 
 }  // namespace
 
 void detect_pairs(const Scene& scene, State& state) {
+  FrameScratch& sc = *state.scratch;
   state.num_pairs = 0;
   const collision::World& world = scene.world();
   const ModelGeometry& ga = world.geometry(0);
   const Eigen::Isometry3d world_from_a = state.poses[0].iso();
-  int* cand = state.candidates.data();
+  int* cand = sc.candidates.data();
   const int na = static_cast<int>(ga.piece_bounds.size());
   // With a pool, the narrow phase (GJK and the separating-axis depth, most of
   // the stage) runs on it: the pairs the box tests pass are listed in order,
   // evaluated in parallel, and kept in the list's order, so the pairs are
   // those of the serial loop, in its order.
-  const bool pooled = state.pool != nullptr;
+  const bool pooled = sc.pool != nullptr;
   int num_jobs = 0;
 
   // A pair the narrow phase evaluated: kept when within the tolerance.
@@ -768,7 +770,7 @@ void detect_pairs(const Scene& scene, State& state) {
       // Grow (an allocation, counted): the capacity was too small.
       const size_t cap = state.pairs.size() * 2;
       state.pairs.resize(cap);
-      state.resize_pair_scratch(cap);
+      sc.resize_pair_scratch(cap);
       ++state.warnings.pairs_grown;
     }
     const Eigen::Isometry3d world_from_b = state.poses[static_cast<size_t>(b)].iso();
@@ -790,7 +792,7 @@ void detect_pairs(const Scene& scene, State& state) {
     const double tol = scene.tolerance(b);
     const Eigen::Isometry3d world_from_b = state.poses[static_cast<size_t>(b)].iso();
     const Eigen::Isometry3d b_from_a = world_from_b.inverse(Eigen::Isometry) * world_from_a;
-    state.narrow_b_from_a[static_cast<size_t>(b)] = b_from_a;
+    sc.narrow_b_from_a[static_cast<size_t>(b)] = b_from_a;
     // GJK stops when it improves by less than this (FCL's default 1e-6 is
     // absolute, too coarse for millimetre parts).
     const double gjk_tol = 1e-6 * std::max(ga.scale, gb.scale);
@@ -838,12 +840,12 @@ void detect_pairs(const Scene& scene, State& state) {
         }
         if ((blo.array() > a_hi.array()).any() || (bhi.array() < a_lo.array()).any()) continue;
         if (pooled) {
-          if (num_jobs == static_cast<int>(state.narrow_jobs.size())) {
+          if (num_jobs == static_cast<int>(sc.narrow_jobs.size())) {
             // Grow (an allocation, counted with the pairs' growth).
-            state.narrow_jobs.resize(2 * state.narrow_jobs.size());
+            sc.narrow_jobs.resize(2 * sc.narrow_jobs.size());
             ++state.warnings.pairs_grown;
           }
-          State::NarrowJob& job = state.narrow_jobs[static_cast<size_t>(num_jobs++)];
+          FrameScratch::NarrowJob& job = sc.narrow_jobs[static_cast<size_t>(num_jobs++)];
           job.b = b;
           job.piece_a = pa;
           job.piece_b = pb;
@@ -861,15 +863,15 @@ void detect_pairs(const Scene& scene, State& state) {
   }
   if (!pooled || num_jobs == 0) return;
   auto narrow = [&](int k, int) {
-    State::NarrowJob& job = state.narrow_jobs[static_cast<size_t>(k)];
+    FrameScratch::NarrowJob& job = sc.narrow_jobs[static_cast<size_t>(k)];
     job.fallback = false;
-    job.ok = collision::piece_distance(ga, job.piece_a, state.narrow_b_from_a[static_cast<size_t>(job.b)],
+    job.ok = collision::piece_distance(ga, job.piece_a, sc.narrow_b_from_a[static_cast<size_t>(job.b)],
                                        world.geometry(job.b), job.piece_b, job.gjk_tolerance, job.d, job.p_a, job.p_b,
                                        job.n, job.fallback);
   };
-  state.pool->run(num_jobs, narrow);
+  sc.pool->run(num_jobs, narrow);
   for (int k = 0; k < num_jobs; ++k) {
-    const State::NarrowJob& job = state.narrow_jobs[static_cast<size_t>(k)];
+    const FrameScratch::NarrowJob& job = sc.narrow_jobs[static_cast<size_t>(k)];
     keep(job.b, job.piece_a, job.piece_b, job.tolerance, job.ok, job.d, job.p_a, job.p_b, job.n, job.fallback);
   }
 }

@@ -72,6 +72,7 @@
 #include <utility>
 
 #include "collision/collision.h"
+#include "contact/scratch.h"
 #include "hrt/scene.h"
 
 namespace hrt {
@@ -280,20 +281,21 @@ namespace {
 // Greedy matching of this frame's patches to the previous frame's tracks
 // (closest contact point on B first). match[k] = track index or -1.
 void match_tracks(const Scene& scene, State& st, const double cos_max, int* match) {
+  FrameScratch& sc = *st.scratch;
   const int K = st.num_patches;
   const double radius_factor = scene.options().cluster.track_radius_factor;
-  char* track_taken = st.track_taken.data();
-  for (int t = 0; t < st.num_tracks; ++t) track_taken[t] = 0;
+  char* track_taken = sc.track_taken.data();
+  for (int t = 0; t < sc.num_tracks; ++t) track_taken[t] = 0;
   for (int k = 0; k < K; ++k) match[k] = -1;
   for (;;) {
     double best = std::numeric_limits<double>::infinity();
     int bk = -1, bt = -1;
     for (int k = 0; k < K; ++k) {
       if (match[k] >= 0) continue;
-      const PatchTrack& cur = st.next_tracks[static_cast<size_t>(k)];
-      for (int t = 0; t < st.num_tracks; ++t) {
+      const PatchTrack& cur = sc.next_tracks[static_cast<size_t>(k)];
+      for (int t = 0; t < sc.num_tracks; ++t) {
         if (track_taken[t]) continue;
-        const PatchTrack& prev = st.tracks[static_cast<size_t>(t)];
+        const PatchTrack& prev = sc.tracks[static_cast<size_t>(t)];
         if (prev.object_b != cur.object_b) continue;
         if (prev.n_local.dot(cur.n_local) < cos_max) continue;
         const double d = (prev.p_b_local - cur.p_b_local).norm();
@@ -327,8 +329,8 @@ struct ClusterContext {
 };
 
 // Auto resolution: the grid texel each B's patches aim at (0 = none).
-void set_target_cells(const ClusterContext& cx, State& st) {
-  double* target_cell = st.target_cell.data();
+void set_target_cells(const ClusterContext& cx, FrameScratch& sc) {
+  double* target_cell = sc.target_cell.data();
   for (int b = 0; b < cx.scene.size(); ++b) {
     double lam = std::numeric_limits<double>::infinity();
     if (cx.A.quality.min_wavelength > 0) lam = std::min(lam, cx.A.quality.min_wavelength);
@@ -339,14 +341,15 @@ void set_target_cells(const ClusterContext& cx, State& st) {
 
 // Weights and union-find.
 void weigh_and_join(const ClusterContext& cx, State& st, const int np) {
+  FrameScratch& sc = *st.scratch;
   const ModelGeometry& ga = cx.ga;
   for (int i = 0; i < np; ++i) {
     const PiecePair& p = st.pairs[static_cast<size_t>(i)];
     const double depth = p.tolerance > 0 ? std::max((p.tolerance - p.distance) / p.tolerance, 1e-3) : 1.0;
-    st.pair_weight[static_cast<size_t>(i)] =
+    sc.pair_weight[static_cast<size_t>(i)] =
         depth * pair_overlap_area(ga, cx.world_from_a, cx.world.geometry(p.object_b),
                                   st.poses[static_cast<size_t>(p.object_b)].iso(), p);
-    st.uf_parent[static_cast<size_t>(i)] = i;
+    sc.uf_parent[static_cast<size_t>(i)] = i;
   }
   for (int i = 0; i < np; ++i) {
     const PiecePair& pi = st.pairs[static_cast<size_t>(i)];
@@ -369,7 +372,7 @@ void weigh_and_join(const ClusterContext& cx, State& st, const int np) {
         reach = std::min(reach, gb.piece_bounds[static_cast<size_t>(pi.piece_b)].radius +
                                     gb.piece_bounds[static_cast<size_t>(pj.piece_b)].radius);
       if ((0.5 * (pi.p_a + pi.p_b) - 0.5 * (pj.p_a + pj.p_b)).squaredNorm() > reach * reach) continue;
-      uf_union(st.uf_parent, i, j);
+      uf_union(sc.uf_parent, i, j);
     }
   }
 }
@@ -377,32 +380,33 @@ void weigh_and_join(const ClusterContext& cx, State& st, const int np) {
 // Clusters (numbered by their first pair), capped by weight; returns the
 // number of patches (also st.num_patches).
 int number_patches(const ClusterContext& cx, State& st, const int np) {
+  FrameScratch& sc = *st.scratch;
   int nclusters = 0;
   for (int i = 0; i < np; ++i) {
-    const int r = uf_find(st.uf_parent, i);  // r <= i: the root is the smallest index
+    const int r = uf_find(sc.uf_parent, i);  // r <= i: the root is the smallest index
     if (r == i) {
-      st.cluster_weight[static_cast<size_t>(nclusters)] = 0.0;
-      st.pair_cluster[static_cast<size_t>(i)] = nclusters++;
+      sc.cluster_weight[static_cast<size_t>(nclusters)] = 0.0;
+      sc.pair_cluster[static_cast<size_t>(i)] = nclusters++;
     } else {
-      st.pair_cluster[static_cast<size_t>(i)] = st.pair_cluster[static_cast<size_t>(r)];
+      sc.pair_cluster[static_cast<size_t>(i)] = sc.pair_cluster[static_cast<size_t>(r)];
     }
-    st.cluster_weight[static_cast<size_t>(st.pair_cluster[static_cast<size_t>(i)])] +=
-        st.pair_weight[static_cast<size_t>(i)];
+    sc.cluster_weight[static_cast<size_t>(sc.pair_cluster[static_cast<size_t>(i)])] +=
+        sc.pair_weight[static_cast<size_t>(i)];
   }
   const int maxp = cx.copt.max_patches;
   const int K = std::min(nclusters, maxp);
-  for (int c = 0; c < nclusters; ++c) st.cluster_patch[static_cast<size_t>(c)] = c;
+  for (int c = 0; c < nclusters; ++c) sc.cluster_patch[static_cast<size_t>(c)] = c;
   if (nclusters > maxp) {
     // Keep the maxp heaviest (ties: the first found), in order of first pair.
-    int* order = st.cluster_order.data();
+    int* order = sc.cluster_order.data();
     for (int c = 0; c < nclusters; ++c) order[c] = c;
     std::sort(order, order + nclusters, [&](int x, int y) {
-      const double wx = st.cluster_weight[static_cast<size_t>(x)], wy = st.cluster_weight[static_cast<size_t>(y)];
+      const double wx = sc.cluster_weight[static_cast<size_t>(x)], wy = sc.cluster_weight[static_cast<size_t>(y)];
       return wx != wy ? wx > wy : x < y;
     });
     std::sort(order, order + maxp);
-    for (int c = 0; c < nclusters; ++c) st.cluster_patch[static_cast<size_t>(c)] = -1;
-    for (int k = 0; k < maxp; ++k) st.cluster_patch[static_cast<size_t>(order[k])] = k;
+    for (int c = 0; c < nclusters; ++c) sc.cluster_patch[static_cast<size_t>(c)] = -1;
+    for (int k = 0; k < maxp; ++k) sc.cluster_patch[static_cast<size_t>(order[k])] = k;
     st.warnings.patches_dropped += static_cast<uint64_t>(nclusters - maxp);
   }
   st.num_patches = K;
@@ -410,39 +414,40 @@ int number_patches(const ClusterContext& cx, State& st, const int np) {
 }
 
 // Pairs grouped by patch (counting sort, stable: ascending pair index).
-void group_pairs(State& st, const int np, const int K) {
-  for (int k = 0; k < K; ++k) st.patch_pair_count[static_cast<size_t>(k)] = 0;
+void group_pairs(FrameScratch& sc, const int np, const int K) {
+  for (int k = 0; k < K; ++k) sc.patch_pair_count[static_cast<size_t>(k)] = 0;
   for (int i = 0; i < np; ++i) {
-    const int k = st.cluster_patch[static_cast<size_t>(st.pair_cluster[static_cast<size_t>(i)])];
-    if (k >= 0) ++st.patch_pair_count[static_cast<size_t>(k)];
+    const int k = sc.cluster_patch[static_cast<size_t>(sc.pair_cluster[static_cast<size_t>(i)])];
+    if (k >= 0) ++sc.patch_pair_count[static_cast<size_t>(k)];
   }
   for (int k = 0, acc = 0; k < K; ++k) {
-    st.patch_first_pair[static_cast<size_t>(k)] = acc;
-    acc += st.patch_pair_count[static_cast<size_t>(k)];
-    st.patch_pair_count[static_cast<size_t>(k)] = 0;
+    sc.patch_first_pair[static_cast<size_t>(k)] = acc;
+    acc += sc.patch_pair_count[static_cast<size_t>(k)];
+    sc.patch_pair_count[static_cast<size_t>(k)] = 0;
   }
   for (int i = 0; i < np; ++i) {
-    const int k = st.cluster_patch[static_cast<size_t>(st.pair_cluster[static_cast<size_t>(i)])];
+    const int k = sc.cluster_patch[static_cast<size_t>(sc.pair_cluster[static_cast<size_t>(i)])];
     if (k < 0) continue;
-    st.pair_order[static_cast<size_t>(st.patch_first_pair[static_cast<size_t>(k)] +
-                                      st.patch_pair_count[static_cast<size_t>(k)]++)] = i;
+    sc.pair_order[static_cast<size_t>(sc.patch_first_pair[static_cast<size_t>(k)] +
+                                      sc.patch_pair_count[static_cast<size_t>(k)]++)] = i;
   }
 }
 
 // Per patch: n, points (weighted means); identity in B's frame.
 void patch_means(State& st, const int K) {
+  FrameScratch& sc = *st.scratch;
   for (int k = 0; k < K; ++k) {
     ContactPatch& patch = st.patches[static_cast<size_t>(k)];
-    const int first = st.patch_first_pair[static_cast<size_t>(k)];
-    const int count = st.patch_pair_count[static_cast<size_t>(k)];
+    const int first = sc.patch_first_pair[static_cast<size_t>(k)];
+    const int count = sc.patch_pair_count[static_cast<size_t>(k)];
     Vec3 nsum = Vec3::Zero(), pa = Vec3::Zero(), pb = Vec3::Zero();
     double wsum = 0.0, wmax = -1.0;
     Vec3 nmax = Vec3::UnitZ();
     int object_b = -1;
     for (int s = 0; s < count; ++s) {
-      const int i = st.pair_order[static_cast<size_t>(first + s)];
+      const int i = sc.pair_order[static_cast<size_t>(first + s)];
       const PiecePair& p = st.pairs[static_cast<size_t>(i)];
-      const double w = st.pair_weight[static_cast<size_t>(i)];
+      const double w = sc.pair_weight[static_cast<size_t>(i)];
       nsum += w * p.n;
       pa += w * p.p_a;
       pb += w * p.p_b;
@@ -461,7 +466,7 @@ void patch_means(State& st, const int K) {
     patch.object_b = object_b;
     patch.piece_pairs = count;
     const Eigen::Isometry3d world_from_b = st.poses[static_cast<size_t>(object_b)].iso();
-    PatchTrack& tr = st.next_tracks[static_cast<size_t>(k)];
+    PatchTrack& tr = sc.next_tracks[static_cast<size_t>(k)];
     tr.object_b = object_b;
     tr.p_b_local = world_from_b.inverse(Eigen::Isometry) * patch.p_b;
     tr.n_local = world_from_b.linear().transpose() * patch.n;
@@ -495,48 +500,49 @@ Vec3 tangent_u(const PatchTrack* prev, const Eigen::Matrix3d& rb, const Vec3& n)
 }
 
 // The next stamp of the face, piece and vertex marks.
-uint32_t next_face_stamp(State& st) {
-  ++st.face_stamp;
-  if (st.face_stamp == 0) {  // wrapped: clear the marks (once every 2^32 patches)
-    std::fill(st.face_mark_a.begin(), st.face_mark_a.end(), 0u);
-    std::fill(st.face_mark_b.begin(), st.face_mark_b.end(), 0u);
-    std::fill(st.piece_mark_a.begin(), st.piece_mark_a.end(), 0u);
-    std::fill(st.piece_mark_b.begin(), st.piece_mark_b.end(), 0u);
-    std::fill(st.vertex_stamp_a.begin(), st.vertex_stamp_a.end(), 0u);
-    std::fill(st.vertex_stamp_b.begin(), st.vertex_stamp_b.end(), 0u);
-    st.face_stamp = 1;
+uint32_t next_face_stamp(FrameScratch& sc) {
+  ++sc.face_stamp;
+  if (sc.face_stamp == 0) {  // wrapped: clear the marks (once every 2^32 patches)
+    std::fill(sc.face_mark_a.begin(), sc.face_mark_a.end(), 0u);
+    std::fill(sc.face_mark_b.begin(), sc.face_mark_b.end(), 0u);
+    std::fill(sc.piece_mark_a.begin(), sc.piece_mark_a.end(), 0u);
+    std::fill(sc.piece_mark_b.begin(), sc.piece_mark_b.end(), 0u);
+    std::fill(sc.vertex_stamp_a.begin(), sc.vertex_stamp_a.end(), 0u);
+    std::fill(sc.vertex_stamp_b.begin(), sc.vertex_stamp_b.end(), 0u);
+    sc.face_stamp = 1;
   }
-  return st.face_stamp;
+  return sc.face_stamp;
 }
 
 // Triangles of patch k's pieces facing each other (patch.tris_a, tris_b,
 // reach_a, reach_b, facing).
 void patch_faces(const ClusterContext& cx, State& st, const int k, const Eigen::Isometry3d& world_from_b,
                  const double reach_h, const uint32_t stamp) {
+  FrameScratch& sc = *st.scratch;
   ContactPatch& patch = st.patches[static_cast<size_t>(k)];
   const int b = patch.object_b;
   const Vec3& n = patch.n;
   // Unique pieces of the patch, sorted.
   int na = 0;
-  const int first = st.patch_first_pair[static_cast<size_t>(k)];
-  const int count = st.patch_pair_count[static_cast<size_t>(k)];
+  const int first = sc.patch_first_pair[static_cast<size_t>(k)];
+  const int count = sc.patch_pair_count[static_cast<size_t>(k)];
   for (int s = 0; s < count; ++s) {
-    const PiecePair& p = st.pairs[static_cast<size_t>(st.pair_order[static_cast<size_t>(first + s)])];
-    if (st.piece_mark_a[static_cast<size_t>(p.piece_a)] != stamp) {
-      st.piece_mark_a[static_cast<size_t>(p.piece_a)] = stamp;
-      st.piece_list_a[static_cast<size_t>(na++)] = p.piece_a;
+    const PiecePair& p = st.pairs[static_cast<size_t>(sc.pair_order[static_cast<size_t>(first + s)])];
+    if (sc.piece_mark_a[static_cast<size_t>(p.piece_a)] != stamp) {
+      sc.piece_mark_a[static_cast<size_t>(p.piece_a)] = stamp;
+      sc.piece_list_a[static_cast<size_t>(na++)] = p.piece_a;
     }
   }
   int nb = 0;
   for (int s = 0; s < count; ++s) {
-    const PiecePair& p = st.pairs[static_cast<size_t>(st.pair_order[static_cast<size_t>(first + s)])];
-    if (st.piece_mark_b[static_cast<size_t>(p.piece_b)] != stamp) {
-      st.piece_mark_b[static_cast<size_t>(p.piece_b)] = stamp;
-      st.piece_list_b[static_cast<size_t>(nb++)] = p.piece_b;
+    const PiecePair& p = st.pairs[static_cast<size_t>(sc.pair_order[static_cast<size_t>(first + s)])];
+    if (sc.piece_mark_b[static_cast<size_t>(p.piece_b)] != stamp) {
+      sc.piece_mark_b[static_cast<size_t>(p.piece_b)] = stamp;
+      sc.piece_list_b[static_cast<size_t>(nb++)] = p.piece_b;
     }
   }
-  std::sort(st.piece_list_a.begin(), st.piece_list_a.begin() + na);
-  std::sort(st.piece_list_b.begin(), st.piece_list_b.begin() + nb);
+  std::sort(sc.piece_list_a.begin(), sc.piece_list_a.begin() + na);
+  std::sort(sc.piece_list_b.begin(), sc.piece_list_b.begin() + nb);
   // Each side's faces are first culled against the other side's pieces
   // (their box, taken into this side's frame), grown by the reach along n
   // (below) plus the largest finite-difference displacement (one texel of
@@ -546,8 +552,8 @@ void patch_faces(const ClusterContext& cx, State& st, const int k, const Eigen::
   const ModelGeometry& gb = cx.world.geometry(b);
   const Eigen::Isometry3d a_from_b = cx.world_from_a.inverse(Eigen::Isometry) * world_from_b;
   Vec3 cb, hb, ca_, ha;
-  pieces_box(gb, st.piece_list_b, nb, cb, hb);
-  pieces_box(cx.ga, st.piece_list_a, na, ca_, ha);
+  pieces_box(gb, sc.piece_list_b, nb, cb, hb);
+  pieces_box(cx.ga, sc.piece_list_a, na, ca_, ha);
   const double grow_a = reach_h + fopt.lin_step + 2.0 * hb.maxCoeff() / (N - 4);
   const double grow_b = reach_h + fopt.lin_step + 2.0 * ha.maxCoeff() / (N - 4);
   const Vec3 region_a_c = a_from_b * cb;
@@ -557,10 +563,10 @@ void patch_faces(const ClusterContext& cx, State& st, const int k, const Eigen::
   // The mesh heights take every face in the region, at any angle
   // (hrt/depth.h HeightMode::mesh): the others go to reach_a / reach_b.
   const bool mesh = fopt.heights == HeightMode::mesh;
-  collect_faces(cx.A, cx.ga, cx.world_from_a.linear(), n, st.piece_list_a, na, region_a_c, region_a_h, st.face_mark_a,
+  collect_faces(cx.A, cx.ga, cx.world_from_a.linear(), n, sc.piece_list_a, na, region_a_c, region_a_h, sc.face_mark_a,
                 stamp, patch.tris_a, mesh ? &patch.reach_a : nullptr);
-  collect_faces(cx.scene.model(b), gb, world_from_b.linear(), -n, st.piece_list_b, nb, region_b_c, region_b_h,
-                st.face_mark_b, stamp, patch.tris_b, mesh ? &patch.reach_b : nullptr);
+  collect_faces(cx.scene.model(b), gb, world_from_b.linear(), -n, sc.piece_list_b, nb, region_b_c, region_b_h,
+                sc.face_mark_b, stamp, patch.tris_b, mesh ? &patch.reach_b : nullptr);
   if (!mesh) patch.reach_a.clear(), patch.reach_b.clear();
   // No face of one side faces the other along n: n is edge-on to the
   // surfaces in contact (frame.cpp refuses the patch).
@@ -575,15 +581,15 @@ void patch_faces(const ClusterContext& cx, State& st, const int k, const Eigen::
 // (largest h_A). reach_h = 2 x the pair tolerance (which already holds both
 // textures' outward displacements) plus what a finite-difference rotation
 // can lift a point. Triangles entirely out of reach are dropped; the full
-// boxes of the kept ones, by list position, go to st.tri_box_a / tri_box_b
+// boxes of the kept ones, by list position, go to the scratch's tri_box_a / tri_box_b
 // for the final culling.
-Rect reach_rect(const ClusterContext& cx, State& st, ContactPatch& patch, const Eigen::Isometry3d& world_from_b,
+Rect reach_rect(const ClusterContext& cx, FrameScratch& sc, ContactPatch& patch, const Eigen::Isometry3d& world_from_b,
                 const Vec3& anchor, const double reach_h, const uint32_t stamp) {
   const Model& A = cx.A;
   const Model& B = cx.scene.model(patch.object_b);
   const Vec3 &u = patch.u, &v = patch.v, &n = patch.n;
-  const Projector proj_a(A, cx.world_from_a, u, v, n, anchor, st.vertex_stamp_a.data(), st.vertex_proj_a.data(), stamp);
-  const Projector proj_b(B, world_from_b, u, v, n, anchor, st.vertex_stamp_b.data(), st.vertex_proj_b.data(), stamp);
+  const Projector proj_a(A, cx.world_from_a, u, v, n, anchor, sc.vertex_stamp_a.data(), sc.vertex_proj_a.data(), stamp);
+  const Projector proj_b(B, world_from_b, u, v, n, anchor, sc.vertex_stamp_b.data(), sc.vertex_proj_b.data(), stamp);
   double ha_max = -std::numeric_limits<double>::infinity();
   double hb_min = std::numeric_limits<double>::infinity();
   for (uint32_t f : patch.tris_a)
@@ -591,8 +597,8 @@ Rect reach_rect(const ClusterContext& cx, State& st, ContactPatch& patch, const 
   for (uint32_t f : patch.tris_b)
     for (uint32_t vi : B.faces[f]) hb_min = std::min(hb_min, proj_b.vertex(vi)[2]);
   Rect ra, rb_rect, full, part;
-  double* box_a = st.tri_box_a.data();
-  double* box_b = st.tri_box_b.data();
+  double* box_a = sc.tri_box_a.data();
+  double* box_b = sc.tri_box_b.data();
   size_t w = 0;
   for (uint32_t f : patch.tris_a) {
     if (!proj_a.boxes(f, hb_min - reach_h, +1.0, full, part)) continue;
@@ -633,7 +639,7 @@ WindowPlace place_window(const ClusterContext& cx, State& st, ContactPatch& patc
   const ForceOptions& fopt = cx.fopt;
   const Vec3 &u = patch.u, &v = patch.v, &n = patch.n;
   const int b = patch.object_b;
-  const double* target_cell = st.target_cell.data();
+  const double* target_cell = st.scratch->target_cell.data();
   const Vec3 mid = 0.5 * (patch.p_a + patch.p_b);
   if (d.empty()) {
     // No overlap in projection (e.g. side-by-side pieces within the
@@ -694,9 +700,9 @@ WindowPlace place_window(const ClusterContext& cx, State& st, ContactPatch& patc
 
 // Drop triangles that cannot reach the window in any configuration (their
 // full boxes from reach_rect).
-void cull_to_window(const State& st, ContactPatch& patch, const WindowPlace& wp) {
-  const double* box_a = st.tri_box_a.data();
-  const double* box_b = st.tri_box_b.data();
+void cull_to_window(const FrameScratch& sc, ContactPatch& patch, const WindowPlace& wp) {
+  const double* box_a = sc.tri_box_a.data();
+  const double* box_b = sc.tri_box_b.data();
   const double wlo_u = wp.lo_u - wp.pad, whi_u = wp.lo_u + wp.side + wp.pad;
   const double wlo_v = wp.lo_v - wp.pad, whi_v = wp.lo_v + wp.side + wp.pad;
   auto outside = [&](const double* bx) { return bx[2] < wlo_u || bx[0] > whi_u || bx[3] < wlo_v || bx[1] > whi_v; };
@@ -715,8 +721,9 @@ void cull_to_window(const State& st, ContactPatch& patch, const WindowPlace& wp)
 
 // Per patch: basis, triangles, window; the track for the next frame.
 void shape_patch(const ClusterContext& cx, State& st, const int k, const PatchTrack* prev) {
+  FrameScratch& sc = *st.scratch;
   ContactPatch& patch = st.patches[static_cast<size_t>(k)];
-  PatchTrack& tr = st.next_tracks[static_cast<size_t>(k)];
+  PatchTrack& tr = sc.next_tracks[static_cast<size_t>(k)];
   const int b = patch.object_b;
   const Eigen::Isometry3d world_from_b = st.poses[static_cast<size_t>(b)].iso();
   const Eigen::Matrix3d rb = world_from_b.linear();
@@ -725,14 +732,14 @@ void shape_patch(const ClusterContext& cx, State& st, const int k, const PatchTr
   patch.u = u;
   patch.v = n.cross(u);
 
-  const uint32_t stamp = next_face_stamp(st);
+  const uint32_t stamp = next_face_stamp(sc);
   const double tol = cx.scene.tolerance(b);
   const double reach_h = 2.0 * tol + (cx.fopt.ang_step > 0 ? cx.fopt.ang_step * cx.ga.scale : 0.0);
   patch_faces(cx, st, k, world_from_b, reach_h, stamp);
   const Vec3 anchor = world_from_b.translation();
-  const Rect d = reach_rect(cx, st, patch, world_from_b, anchor, reach_h, stamp);
+  const Rect d = reach_rect(cx, sc, patch, world_from_b, anchor, reach_h, stamp);
   const WindowPlace wp = place_window(cx, st, patch, prev, anchor, d);
-  cull_to_window(st, patch, wp);
+  cull_to_window(sc, patch, wp);
 
   // Results are filled by the force stage.
   patch.delta = 0.0;
@@ -749,7 +756,7 @@ void shape_patch(const ClusterContext& cx, State& st, const int k, const PatchTr
     tr.id = prev->id;
     tr.warned = prev->warned;
   } else {
-    tr.id = st.next_track_id++;
+    tr.id = sc.next_track_id++;
     tr.warned = false;
   }
   st.patch_ids[static_cast<size_t>(k)] = tr.id;
@@ -764,6 +771,7 @@ void cluster_pairs(const Scene& scene, State& st) {
   const Model& A = scene.model(0);
   const Eigen::Isometry3d world_from_a = st.poses[0].iso();
   const int N = fopt.resolution;
+  FrameScratch& sc = *st.scratch;
   const ClusterContext cx{scene,
                           copt,
                           fopt,
@@ -775,17 +783,17 @@ void cluster_pairs(const Scene& scene, State& st) {
                           world_from_a * A.mass.center_of_mass,
                           N,
                           copt.auto_resolution ? std::max(N, copt.max_resolution) : N};
-  set_target_cells(cx, st);
+  set_target_cells(cx, sc);
   weigh_and_join(cx, st, np);
   const int K = number_patches(cx, st, np);
-  group_pairs(st, np, K);
+  group_pairs(sc, np, K);
   patch_means(st, K);
-  int* match = st.cluster_order.data();  // scratch (>= K entries), the capping is done
+  int* match = sc.cluster_order.data();  // scratch (>= K entries), the capping is done
   match_tracks(scene, st, cx.cos_max, match);
   for (int k = 0; k < K; ++k)
-    shape_patch(cx, st, k, match[k] >= 0 ? &st.tracks[static_cast<size_t>(match[k])] : nullptr);
-  std::swap(st.tracks, st.next_tracks);
-  st.num_tracks = K;
+    shape_patch(cx, st, k, match[k] >= 0 ? &sc.tracks[static_cast<size_t>(match[k])] : nullptr);
+  std::swap(sc.tracks, sc.next_tracks);
+  sc.num_tracks = K;
 }
 
 }  // namespace hrt

@@ -118,6 +118,7 @@
 #include <limits>
 
 #include "collision/collision.h"
+#include "contact/scratch.h"
 #include "hrt/depth.h"
 #include "hrt/force.h"
 #include "hrt/scene.h"
@@ -166,9 +167,10 @@ double pair_axis_overlap(const collision::ModelGeometry& ga, const Eigen::Isomet
   return fa.hi - fb.lo;
 }
 
-// Refusal and bound of patch k (see the header comment). st.pair_overlap
-// holds O_i of every pair.
+// Refusal and bound of patch k (see the header comment). The scratch's
+// pair_overlap holds O_i of every pair.
 void check_patch(const Scene& scene, State& st, int k, bool& refused, double& bound, double& bound_own) {
+  FrameScratch& sc = *st.scratch;
   const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
   const Vec3& n = patch.n;
   const int b = patch.object_b;
@@ -176,38 +178,38 @@ void check_patch(const Scene& scene, State& st, int k, bool& refused, double& bo
   const collision::ModelGeometry& gb = scene.world().geometry(b);
   const Eigen::Isometry3d world_from_a = st.poses[0].iso();
   const Eigen::Isometry3d world_from_b = st.poses[static_cast<size_t>(b)].iso();
-  const int first = st.patch_first_pair[static_cast<size_t>(k)];
-  const int count = st.patch_pair_count[static_cast<size_t>(k)];
+  const int first = sc.patch_first_pair[static_cast<size_t>(k)];
+  const int count = sc.patch_pair_count[static_cast<size_t>(k)];
   refused = false;
   bound = 0.0;
   bound_own = 0.0;
   // The pieces that list the patch's triangles (marked with a fresh stamp).
-  if (++st.safety_stamp == 0) {
-    std::fill(st.safety_mark_a.begin(), st.safety_mark_a.end(), 0u);
-    std::fill(st.safety_mark_b.begin(), st.safety_mark_b.end(), 0u);
-    st.safety_stamp = 1;
+  if (++sc.safety_stamp == 0) {
+    std::fill(sc.safety_mark_a.begin(), sc.safety_mark_a.end(), 0u);
+    std::fill(sc.safety_mark_b.begin(), sc.safety_mark_b.end(), 0u);
+    sc.safety_stamp = 1;
   }
-  const uint32_t stamp = st.safety_stamp;
+  const uint32_t stamp = sc.safety_stamp;
   for (uint32_t f : patch.tris_a)
     for (int j = ga.face_piece_offset[f]; j < ga.face_piece_offset[f + 1]; ++j)
-      st.safety_mark_a[static_cast<size_t>(ga.face_pieces[static_cast<size_t>(j)])] = stamp;
+      sc.safety_mark_a[static_cast<size_t>(ga.face_pieces[static_cast<size_t>(j)])] = stamp;
   for (uint32_t f : patch.tris_b)
     for (int j = gb.face_piece_offset[f]; j < gb.face_piece_offset[f + 1]; ++j)
-      st.safety_mark_b[static_cast<size_t>(gb.face_pieces[static_cast<size_t>(j)])] = stamp;
+      sc.safety_mark_b[static_cast<size_t>(gb.face_pieces[static_cast<size_t>(j)])] = stamp;
   for (int i = 0; i < st.num_pairs; ++i) {
     const PiecePair& p = st.pairs[static_cast<size_t>(i)];
     if (p.object_b != b) continue;
     bool own = false;
-    for (int s = 0; s < count && !own; ++s) own = st.pair_order[static_cast<size_t>(first + s)] == i;
-    const bool listed = st.safety_mark_a[static_cast<size_t>(p.piece_a)] == stamp &&
-                        st.safety_mark_b[static_cast<size_t>(p.piece_b)] == stamp;
+    for (int s = 0; s < count && !own; ++s) own = sc.pair_order[static_cast<size_t>(first + s)] == i;
+    const bool listed = sc.safety_mark_a[static_cast<size_t>(p.piece_a)] == stamp &&
+                        sc.safety_mark_b[static_cast<size_t>(p.piece_b)] == stamp;
     if (!own && !listed) continue;
     int wa = 0, wb = 0;
     const Extent ea = piece_extent(ga, p.piece_a, world_from_a, n, &wa);
     const Extent eb = piece_extent(gb, p.piece_b, world_from_b, n, &wb);
     const double reach = ea.hi - eb.lo;
     const double tol = p.tolerance;
-    const double o = st.pair_overlap[static_cast<size_t>(i)];
+    const double o = sc.pair_overlap[static_cast<size_t>(i)];
     const double c = n.dot(p.n);
     const double along_pair = c > 0 ? (tol + o) / c : std::numeric_limits<double>::infinity();
     bound = std::max(bound, std::min(along_pair, tol + reach));
@@ -268,6 +270,7 @@ Vec3 deepest_point(const collision::ModelGeometry& ga, int pa, const Eigen::Isom
 // Sizes the deep-fallback scratch of `st` (an allocation only on the first
 // frame of a State a Session did not prepare, or when the pair buffer grew).
 void size_deep_state(State& st) {
+  FrameScratch& sc = *st.scratch;
   const size_t n = st.poses.size();
   if (st.deep_active.size() != n) {
     st.deep_active.assign(n, 0);
@@ -277,20 +280,20 @@ void size_deep_state(State& st) {
     st.deep_grad.assign(n, Vec6::Zero());
     st.deep_wrench.assign(n, Vec6::Zero());
     st.deep_pair.assign(n, -1);
-    st.free_last.assign(n, 0);
-    st.free_pose.assign(n, Pose{});
+    sc.free_last.assign(n, 0);
+    sc.free_pose.assign(n, Pose{});
   }
   const size_t m = st.pairs.size();
-  if (st.pair_axis.size() < m) {
-    st.pair_axis.resize(m);
-    st.pair_axis_overlap.resize(m);
-    st.pair_flipped.resize(m);
-    st.pair_key.resize(m);
-    st.pair_sort.resize(m);
+  if (sc.pair_axis.size() < m) {
+    sc.pair_axis.resize(m);
+    sc.pair_axis_overlap.resize(m);
+    sc.pair_flipped.resize(m);
+    sc.pair_key.resize(m);
+    sc.pair_sort.resize(m);
   }
-  if (st.memory_key.size() < m) {
-    st.memory_key.resize(m);
-    st.memory_axis.resize(m);
+  if (sc.memory_key.size() < m) {
+    sc.memory_key.resize(m);
+    sc.memory_axis.resize(m);
   }
 }
 
@@ -298,37 +301,38 @@ void size_deep_state(State& st) {
 // header's rules); then this frame's pairs become the memory of the next.
 void judge_pairs(const Scene& scene, State& st) {
   size_deep_state(st);
+  FrameScratch& sc = *st.scratch;
   const int np = st.num_pairs;
   for (int i = 0; i < np; ++i) {
-    st.pair_key[static_cast<size_t>(i)] = pair_key(st.pairs[static_cast<size_t>(i)]);
-    st.pair_sort[static_cast<size_t>(i)] = i;
+    sc.pair_key[static_cast<size_t>(i)] = pair_key(st.pairs[static_cast<size_t>(i)]);
+    sc.pair_sort[static_cast<size_t>(i)] = i;
   }
-  std::sort(st.pair_sort.begin(), st.pair_sort.begin() + np,
-            [&](int x, int y) { return st.pair_key[static_cast<size_t>(x)] < st.pair_key[static_cast<size_t>(y)]; });
+  std::sort(sc.pair_sort.begin(), sc.pair_sort.begin() + np,
+            [&](int x, int y) { return sc.pair_key[static_cast<size_t>(x)] < sc.pair_key[static_cast<size_t>(y)]; });
   const collision::ModelGeometry& ga = scene.world().geometry(0);
   const Eigen::Isometry3d world_from_a = st.poses[0].iso();
   int j = 0;
   for (int s = 0; s < np; ++s) {
-    const int i = st.pair_sort[static_cast<size_t>(s)];
+    const int i = sc.pair_sort[static_cast<size_t>(s)];
     const PiecePair& p = st.pairs[static_cast<size_t>(i)];
-    const uint64_t key = st.pair_key[static_cast<size_t>(i)];
+    const uint64_t key = sc.pair_key[static_cast<size_t>(i)];
     const int b = p.object_b;
     const collision::ModelGeometry& gb = scene.world().geometry(b);
     const Pose& pose_b = st.poses[static_cast<size_t>(b)];
     const Eigen::Isometry3d world_from_b = pose_b.iso();
-    while (j < st.num_memory && st.memory_key[static_cast<size_t>(j)] < key) ++j;
+    while (j < sc.num_memory && sc.memory_key[static_cast<size_t>(j)] < key) ++j;
     Vec3 axis = p.n;
     bool flipped = false;
-    if (j < st.num_memory && st.memory_key[static_cast<size_t>(j)] == key) {
-      const Vec3 m = pose_b.rotation * st.memory_axis[static_cast<size_t>(j)];
+    if (j < sc.num_memory && sc.memory_key[static_cast<size_t>(j)] == key) {
+      const Vec3 m = pose_b.rotation * sc.memory_axis[static_cast<size_t>(j)];
       if (p.n.dot(m) < 0.0) {
         axis = m;
         flipped = true;
       }
-    } else if (st.free_last[static_cast<size_t>(b)]) {
+    } else if (sc.free_last[static_cast<size_t>(b)]) {
       // A contact that starts here: where was A in the last frame, on which
       // side of B's piece along n?
-      const Eigen::Isometry3d a_then = world_from_b * st.free_pose[static_cast<size_t>(b)].iso();
+      const Eigen::Isometry3d a_then = world_from_b * sc.free_pose[static_cast<size_t>(b)].iso();
       const double along_n = axis_overlap(ga, p.piece_a, a_then, gb, p.piece_b, world_from_b, p.n);
       const double along_minus_n = axis_overlap(ga, p.piece_a, a_then, gb, p.piece_b, world_from_b, -p.n);
       if (along_minus_n <= 0.0 && along_n > 0.0) {
@@ -336,42 +340,43 @@ void judge_pairs(const Scene& scene, State& st) {
         flipped = true;
       }
     }
-    double overlap = st.pair_overlap[static_cast<size_t>(i)];
+    double overlap = sc.pair_overlap[static_cast<size_t>(i)];
     if (flipped) {
       overlap = axis_overlap(ga, p.piece_a, world_from_a, gb, p.piece_b, world_from_b, axis);
       if (!(overlap > deep_threshold(scene, b)) || !std::isfinite(overlap)) {
         // Not deep (a touching pair whose normal is ill-defined): its own n.
         axis = p.n;
         flipped = false;
-        overlap = st.pair_overlap[static_cast<size_t>(i)];
+        overlap = sc.pair_overlap[static_cast<size_t>(i)];
       }
     }
-    st.pair_axis[static_cast<size_t>(i)] = axis;
-    st.pair_axis_overlap[static_cast<size_t>(i)] = overlap;
-    st.pair_flipped[static_cast<size_t>(i)] = flipped ? 1 : 0;
+    sc.pair_axis[static_cast<size_t>(i)] = axis;
+    sc.pair_axis_overlap[static_cast<size_t>(i)] = overlap;
+    sc.pair_flipped[static_cast<size_t>(i)] = flipped ? 1 : 0;
   }
   // Memory for the next frame (sorted by key, axes in B's frame).
   for (int s = 0; s < np; ++s) {
-    const int i = st.pair_sort[static_cast<size_t>(s)];
+    const int i = sc.pair_sort[static_cast<size_t>(s)];
     const Pose& pose_b = st.poses[static_cast<size_t>(st.pairs[static_cast<size_t>(i)].object_b)];
-    st.memory_key[static_cast<size_t>(s)] = st.pair_key[static_cast<size_t>(i)];
-    st.memory_axis[static_cast<size_t>(s)] = pose_b.rotation.conjugate() * st.pair_axis[static_cast<size_t>(i)];
+    sc.memory_key[static_cast<size_t>(s)] = sc.pair_key[static_cast<size_t>(i)];
+    sc.memory_axis[static_cast<size_t>(s)] = pose_b.rotation.conjugate() * sc.pair_axis[static_cast<size_t>(i)];
   }
-  st.num_memory = np;
+  sc.num_memory = np;
   // Which objects A is free of this frame (for the next frame's onsets).
-  for (size_t b = 1; b < st.free_last.size(); ++b) st.free_last[b] = 1;
-  for (int i = 0; i < np; ++i) st.free_last[static_cast<size_t>(st.pairs[static_cast<size_t>(i)].object_b)] = 0;
-  for (size_t b = 1; b < st.free_last.size(); ++b)
-    if (st.free_last[b]) {
+  for (size_t b = 1; b < sc.free_last.size(); ++b) sc.free_last[b] = 1;
+  for (int i = 0; i < np; ++i) sc.free_last[static_cast<size_t>(st.pairs[static_cast<size_t>(i)].object_b)] = 0;
+  for (size_t b = 1; b < sc.free_last.size(); ++b)
+    if (sc.free_last[b]) {
       const Eigen::Isometry3d rel = st.poses[b].iso().inverse() * world_from_a;
-      st.free_pose[b].position = rel.translation();
-      st.free_pose[b].rotation = Eigen::Quaterniond(rel.linear()).normalized();
+      sc.free_pose[b].position = rel.translation();
+      sc.free_pose[b].rotation = Eigen::Quaterniond(rel.linear()).normalized();
     }
 }
 
 // The patches a fallback replaces, and the fallback of each object (the
 // header's rules). After the safety stage, before the sums.
 void apply_deep_fallback(const Scene& scene, State& st) {
+  const FrameScratch& sc = *st.scratch;
   const int nb = scene.size();
   st.num_deep = 0;
   for (int b = 0; b < nb; ++b) {
@@ -387,12 +392,12 @@ void apply_deep_fallback(const Scene& scene, State& st) {
   // seeing it, a pair new this frame).
   auto offer = [&](int i) {
     const int b = st.pairs[static_cast<size_t>(i)].object_b;
-    const double o = st.pair_axis_overlap[static_cast<size_t>(i)];
+    const double o = sc.pair_axis_overlap[static_cast<size_t>(i)];
     if (!(o > deep_threshold(scene, b)) || !std::isfinite(o)) return;
     char& active = st.deep_active[static_cast<size_t>(b)];
     const int best = st.deep_pair[static_cast<size_t>(b)];
-    const bool flipped = st.pair_flipped[static_cast<size_t>(i)];
-    const bool best_flipped = active && st.pair_flipped[static_cast<size_t>(best)];
+    const bool flipped = sc.pair_flipped[static_cast<size_t>(i)];
+    const bool best_flipped = active && sc.pair_flipped[static_cast<size_t>(best)];
     if (!active || (flipped && !best_flipped) ||
         (flipped == best_flipped && o > st.deep_overlap[static_cast<size_t>(b)])) {
       active = 1;
@@ -402,14 +407,14 @@ void apply_deep_fallback(const Scene& scene, State& st) {
   };
   for (int k = 0; k < st.num_patches; ++k) {
     ContactPatch& patch = st.patches[static_cast<size_t>(k)];
-    const int first = st.patch_first_pair[static_cast<size_t>(k)];
-    const int count = st.patch_pair_count[static_cast<size_t>(k)];
+    const int first = sc.patch_first_pair[static_cast<size_t>(k)];
+    const int count = sc.patch_pair_count[static_cast<size_t>(k)];
     const double thr = deep_threshold(scene, patch.object_b);
     bool flipped = false, deep = false;
     for (int s = 0; s < count; ++s) {
-      const int i = st.pair_order[static_cast<size_t>(first + s)];
-      flipped = flipped || st.pair_flipped[static_cast<size_t>(i)];
-      deep = deep || st.pair_axis_overlap[static_cast<size_t>(i)] > thr;
+      const int i = sc.pair_order[static_cast<size_t>(first + s)];
+      flipped = flipped || sc.pair_flipped[static_cast<size_t>(i)];
+      deep = deep || sc.pair_axis_overlap[static_cast<size_t>(i)] > thr;
     }
     // Refused for its normal or its depth: `facing` and finite (a patch that
     // faces nothing has no triangles; a non-finite one is a failure, not a depth).
@@ -420,7 +425,7 @@ void apply_deep_fallback(const Scene& scene, State& st) {
     patch.torque.setZero();
     patch.delta_force = 0.0;
     ++st.warnings.deep_fallback_patches;
-    for (int s = 0; s < count; ++s) offer(st.pair_order[static_cast<size_t>(first + s)]);
+    for (int s = 0; s < count; ++s) offer(sc.pair_order[static_cast<size_t>(first + s)]);
   }
   // Objects with deep pairs and no patch that gives a force.
   for (int b = 1; b < nb; ++b) {
@@ -433,7 +438,7 @@ void apply_deep_fallback(const Scene& scene, State& st) {
     if (force) continue;
     const double thr = deep_threshold(scene, b);
     for (int i = 0; i < st.num_pairs && !deep; ++i)
-      deep = st.pairs[static_cast<size_t>(i)].object_b == b && st.pair_axis_overlap[static_cast<size_t>(i)] > thr;
+      deep = st.pairs[static_cast<size_t>(i)].object_b == b && sc.pair_axis_overlap[static_cast<size_t>(i)] > thr;
     if (!deep) continue;
     for (int k = 0; k < st.num_patches; ++k) {
       ContactPatch& p = st.patches[static_cast<size_t>(k)];
@@ -456,7 +461,7 @@ void apply_deep_fallback(const Scene& scene, State& st) {
     if (!st.deep_active[static_cast<size_t>(b)]) continue;
     const int i = st.deep_pair[static_cast<size_t>(b)];
     const PiecePair& p = st.pairs[static_cast<size_t>(i)];
-    const Vec3 axis = st.pair_axis[static_cast<size_t>(i)];
+    const Vec3 axis = sc.pair_axis[static_cast<size_t>(i)];
     const double o = st.deep_overlap[static_cast<size_t>(b)];
     const Vec3 x = deepest_point(ga, p.piece_a, world_from_a, axis);
     Vec6 g;
@@ -478,11 +483,12 @@ void apply_deep_fallback(const Scene& scene, State& st) {
 }  // namespace
 
 void compute_pair_overlaps(const Scene& scene, State& st) {
+  FrameScratch& sc = *st.scratch;
   const collision::ModelGeometry& ga = scene.world().geometry(0);
   const Eigen::Isometry3d world_from_a = st.poses[0].iso();
   for (int i = 0; i < st.num_pairs; ++i) {
     const PiecePair& p = st.pairs[static_cast<size_t>(i)];
-    st.pair_overlap[static_cast<size_t>(i)] = pair_axis_overlap(ga, world_from_a, scene.world().geometry(p.object_b),
+    sc.pair_overlap[static_cast<size_t>(i)] = pair_axis_overlap(ga, world_from_a, scene.world().geometry(p.object_b),
                                                                 st.poses[static_cast<size_t>(p.object_b)].iso(), p);
   }
 }
@@ -528,6 +534,7 @@ void apply_patch_safety(const Scene& scene, State& st, int k) {
 }
 
 void frame(const Scene& scene, State& st) {
+  FrameScratch& sc = *st.scratch;
   const auto t0 = Clock::now();
   detect_pairs(scene, st);
   const auto t1 = Clock::now();
@@ -548,14 +555,14 @@ void frame(const Scene& scene, State& st) {
     // All patches of the frame in one call (the GL backend tiles them).
     for (int k = 0; k < st.num_patches; ++k) {
       const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
-      DepthJob& job = st.depth_jobs[static_cast<size_t>(k)];
+      DepthJob& job = sc.depth_jobs[static_cast<size_t>(k)];
       job.a = &A;
       job.b = &scene.model(patch.object_b);
       job.pose_a = pose_a;
       job.pose_b = st.poses[static_cast<size_t>(patch.object_b)];
       job.patch = &patch;
     }
-    st.depth_backend->evaluate(st.depth_jobs.data(), st.num_patches, scene.options().force, st.depth_results.data());
+    st.depth_backend->evaluate(sc.depth_jobs.data(), st.num_patches, scene.options().force, sc.depth_results.data());
   }
   // The CPU code on the pool: each patch's delta and gradient on its own
   // (per-thread scratch; a patch's result does not depend on which thread or
@@ -570,16 +577,16 @@ void frame(const Scene& scene, State& st) {
   // first (below), then whole patches go to the threads, the costliest first
   // (estimated by the faces whose heights they rasterize and the grid's
   // texels) so that none is left to the end.
-  const bool pooled = !st.depth_backend && st.pool && st.num_patches >= 1;
+  const bool pooled = !st.depth_backend && sc.pool && st.num_patches >= 1;
   const ForceOptions& fopt = scene.options().force;
   if (pooled && st.num_patches == 1) {
     const ContactPatch& patch = st.patches[0];
     const int b = patch.object_b;
-    st.depth_results[0] = compute_depth_gradient(A, pose_a, scene.model(b), st.poses[static_cast<size_t>(b)], patch,
-                                                 fopt, st.depth, st.pool.get());
+    sc.depth_results[0] = compute_depth_gradient(A, pose_a, scene.model(b), st.poses[static_cast<size_t>(b)], patch,
+                                                 fopt, sc.depth, sc.pool.get());
   } else if (pooled) {
-    int* order = st.pool_order.data();
-    double* cost = st.pool_cost.data();
+    int* order = sc.pool_order.data();
+    double* cost = sc.pool_cost.data();
     for (int k = 0; k < st.num_patches; ++k) {
       const ContactPatch& p = st.patches[static_cast<size_t>(k)];
       const double texels = static_cast<double>(p.window.resolution) * p.window.resolution;
@@ -597,23 +604,23 @@ void frame(const Scene& scene, State& st) {
     double left = 0;
     for (int t = 0; t < st.num_patches; ++t) left += cost[order[t]];
     int first = 0;
-    while (first < st.num_patches && cost[order[first]] * st.pool->threads() > left) {
+    while (first < st.num_patches && cost[order[first]] * sc.pool->threads() > left) {
       const int k = order[first++];
       left -= cost[k];
       const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
       const int b = patch.object_b;
-      st.depth_results[static_cast<size_t>(k)] = compute_depth_gradient(
-          A, pose_a, scene.model(b), st.poses[static_cast<size_t>(b)], patch, fopt, st.depth, st.pool.get());
+      sc.depth_results[static_cast<size_t>(k)] = compute_depth_gradient(
+          A, pose_a, scene.model(b), st.poses[static_cast<size_t>(b)], patch, fopt, sc.depth, sc.pool.get());
     }
     auto task = [&](int t, int slot) {
       const int k = order[first + t];
       const ContactPatch& patch = st.patches[static_cast<size_t>(k)];
       const int b = patch.object_b;
-      DepthScratch& scratch = slot == 0 ? st.depth : st.pool_depth[static_cast<size_t>(slot - 1)];
-      st.depth_results[static_cast<size_t>(k)] =
+      DepthScratch& scratch = slot == 0 ? sc.depth : sc.pool_depth[static_cast<size_t>(slot - 1)];
+      sc.depth_results[static_cast<size_t>(k)] =
           compute_depth_gradient(A, pose_a, scene.model(b), st.poses[static_cast<size_t>(b)], patch, fopt, scratch);
     };
-    if (first < st.num_patches) st.pool->run(st.num_patches - first, task);
+    if (first < st.num_patches) sc.pool->run(st.num_patches - first, task);
   }
   for (int k = 0; k < st.num_patches; ++k) {
     ContactPatch& patch = st.patches[static_cast<size_t>(k)];
@@ -623,11 +630,11 @@ void frame(const Scene& scene, State& st) {
     // The undersampling warning (Sec. 7.2) counts once per patch lifetime:
     // the flag lives in the patch's track (cluster_pairs keeps it across frames).
     if (st.depth_backend || pooled)
-      apply_depth_gradient(A, B, patch, st.depth_results[static_cast<size_t>(k)], scene.options().force,
-                           &st.warnings.depth, &st.tracks[static_cast<size_t>(k)].warned);
+      apply_depth_gradient(A, B, patch, sc.depth_results[static_cast<size_t>(k)], scene.options().force,
+                           &st.warnings.depth, &sc.tracks[static_cast<size_t>(k)].warned);
     else
-      compute_patch_wrench(A, pose_a, B, pose_b, patch, scene.options().force, st.depth, &st.warnings.depth,
-                           &st.tracks[static_cast<size_t>(k)].warned);
+      compute_patch_wrench(A, pose_a, B, pose_b, patch, scene.options().force, sc.depth, &st.warnings.depth,
+                           &sc.tracks[static_cast<size_t>(k)].warned);
 
     apply_patch_safety(scene, st, k);
   }

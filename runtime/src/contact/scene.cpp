@@ -10,6 +10,7 @@
 #include <string>
 
 #include "collision/collision.h"
+#include "contact/scratch.h"
 #include "hrt/scene.h"
 #include "parallel/task_pool.h"
 
@@ -103,7 +104,7 @@ Scene::Scene(std::vector<const Model*> objects, const SceneOptions& options)
 
 Scene::~Scene() = default;
 
-void State::resize_pair_scratch(size_t n) {
+void FrameScratch::resize_pair_scratch(size_t n) {
   pair_weight.resize(n);
   pair_overlap.resize(n);
   uf_parent.resize(n);
@@ -114,7 +115,8 @@ void State::resize_pair_scratch(size_t n) {
   cluster_order.resize(n);
 }
 
-State::State(const Scene& scene) {
+State::State(const Scene& scene) : scratch(std::make_unique<FrameScratch>()) {
+  FrameScratch& sc = *scratch;
   const int n = scene.size();
   poses.assign(static_cast<size_t>(n), Pose{});
   velocities.assign(static_cast<size_t>(n), Vec6::Zero());
@@ -129,8 +131,8 @@ State::State(const Scene& scene) {
   // buffer grows (counted in warnings.pairs_grown) if a scene needs more.
   size_t pair_cap = std::min<size_t>(A.pieces.size() * b_pieces, std::max<size_t>(1024, 8 * A.pieces.size()));
   pairs.resize(std::max<size_t>(pair_cap, 16));
-  resize_pair_scratch(pairs.size());
-  candidates.resize(static_cast<size_t>(std::max(1, scene.world().max_b_pieces())));
+  sc.resize_pair_scratch(pairs.size());
+  sc.candidates.resize(static_cast<size_t>(std::max(1, scene.world().max_b_pieces())));
 
   const int maxp = scene.options().cluster.max_patches;
   patches.resize(static_cast<size_t>(maxp));
@@ -143,46 +145,46 @@ State::State(const Scene& scene) {
     }
   }
   patch_ids.assign(static_cast<size_t>(maxp), 0);
-  depth_jobs.resize(static_cast<size_t>(maxp));
-  depth_results.resize(static_cast<size_t>(maxp));
-  patch_first_pair.assign(static_cast<size_t>(maxp), 0);
-  patch_pair_count.assign(static_cast<size_t>(maxp), 0);
-  tracks.resize(static_cast<size_t>(maxp));
-  next_tracks.resize(static_cast<size_t>(maxp));
-  face_mark_a.assign(A.faces.size(), 0);
-  face_mark_b.assign(b_faces, 0);
-  piece_mark_a.assign(A.pieces.size(), 0);
+  sc.depth_jobs.resize(static_cast<size_t>(maxp));
+  sc.depth_results.resize(static_cast<size_t>(maxp));
+  sc.patch_first_pair.assign(static_cast<size_t>(maxp), 0);
+  sc.patch_pair_count.assign(static_cast<size_t>(maxp), 0);
+  sc.tracks.resize(static_cast<size_t>(maxp));
+  sc.next_tracks.resize(static_cast<size_t>(maxp));
+  sc.face_mark_a.assign(A.faces.size(), 0);
+  sc.face_mark_b.assign(b_faces, 0);
+  sc.piece_mark_a.assign(A.pieces.size(), 0);
   size_t maxbp = 0;
   for (int b = 1; b < n; ++b) maxbp = std::max(maxbp, scene.model(b).pieces.size());
-  piece_mark_b.assign(maxbp, 0);
+  sc.piece_mark_b.assign(maxbp, 0);
   size_t b_vertices = 0;
   for (int b = 1; b < n; ++b) b_vertices = std::max(b_vertices, scene.model(b).vertices.size());
-  vertex_stamp_a.assign(A.vertices.size(), 0);
-  vertex_stamp_b.assign(b_vertices, 0);
-  vertex_proj_a.assign(3 * A.vertices.size(), 0.0);
-  vertex_proj_b.assign(3 * b_vertices, 0.0);
-  tri_box_a.assign(4 * A.faces.size(), 0.0);
-  tri_box_b.assign(4 * b_faces, 0.0);
-  piece_list_a.assign(A.pieces.size(), 0);
-  safety_mark_a.assign(A.pieces.size(), 0);
-  safety_mark_b.assign(maxbp, 0);
-  piece_list_b.assign(maxbp, 0);
-  track_taken.assign(static_cast<size_t>(maxp), 0);
-  target_cell.assign(static_cast<size_t>(n), 0.0);
+  sc.vertex_stamp_a.assign(A.vertices.size(), 0);
+  sc.vertex_stamp_b.assign(b_vertices, 0);
+  sc.vertex_proj_a.assign(3 * A.vertices.size(), 0.0);
+  sc.vertex_proj_b.assign(3 * b_vertices, 0.0);
+  sc.tri_box_a.assign(4 * A.faces.size(), 0.0);
+  sc.tri_box_b.assign(4 * b_faces, 0.0);
+  sc.piece_list_a.assign(A.pieces.size(), 0);
+  sc.safety_mark_a.assign(A.pieces.size(), 0);
+  sc.safety_mark_b.assign(maxbp, 0);
+  sc.piece_list_b.assign(maxbp, 0);
+  sc.track_taken.assign(static_cast<size_t>(maxp), 0);
+  sc.target_cell.assign(static_cast<size_t>(n), 0.0);
   // The largest N any patch may use (ClusterOptions::auto_resolution).
   const ClusterOptions& copt = scene.options().cluster;
   const int reserve_n = copt.auto_resolution ? std::max(scene.options().force.resolution, copt.max_resolution)
                                              : scene.options().force.resolution;
-  depth.reserve(reserve_n);
+  sc.depth.reserve(reserve_n);
   const int threads = resolve_threads(scene.options().threads);
-  narrow_b_from_a.assign(static_cast<size_t>(n), Eigen::Isometry3d::Identity());
+  sc.narrow_b_from_a.assign(static_cast<size_t>(n), Eigen::Isometry3d::Identity());
   if (threads > 1) {
-    narrow_jobs.resize(pairs.size());
-    pool_order.assign(static_cast<size_t>(maxp), 0);
-    pool_cost.assign(static_cast<size_t>(maxp), 0.0);
-    pool = std::make_unique<TaskPool>(threads);
-    pool_depth.resize(static_cast<size_t>(threads - 1));
-    for (DepthScratch& s : pool_depth) s.reserve(reserve_n);
+    sc.narrow_jobs.resize(pairs.size());
+    sc.pool_order.assign(static_cast<size_t>(maxp), 0);
+    sc.pool_cost.assign(static_cast<size_t>(maxp), 0.0);
+    sc.pool = std::make_unique<TaskPool>(threads);
+    sc.pool_depth.resize(static_cast<size_t>(threads - 1));
+    for (DepthScratch& d : sc.pool_depth) d.reserve(reserve_n);
   }
 }
 

@@ -6,6 +6,7 @@
 
 #include <Eigen/Cholesky>
 
+#include "contact/scratch.h"
 #include "hrt/session.h"
 
 namespace hrt {
@@ -225,9 +226,10 @@ Session::Session(const Scene& scene, const SessionOptions& options, const std::v
   friction_.resize(static_cast<size_t>(scene.options().cluster.max_patches));
   friction_patch_.resize(friction_.size());
   for (int b = 0; b < scene.size(); ++b) state_.poses[static_cast<size_t>(b)] = initial[static_cast<size_t>(b)];
-  // The deep fallback's scratch (frame() would size it on its first frame):
-  // per object, and per pair like the State's other pair buffers.
+  // The deep fallback's results and scratch (frame() would size them on its
+  // first frame): per object, and per pair like the State's other pair buffers.
   const size_t n = static_cast<size_t>(scene.size()), np = state_.pairs.size();
+  FrameScratch& sc = *state_.scratch;
   state_.deep_active.assign(n, 0);
   state_.deep_overlap.assign(n, 0.0);
   state_.deep_axis.assign(n, Vec3::Zero());
@@ -235,15 +237,15 @@ Session::Session(const Scene& scene, const SessionOptions& options, const std::v
   state_.deep_grad.assign(n, Vec6::Zero());
   state_.deep_wrench.assign(n, Vec6::Zero());
   state_.deep_pair.assign(n, -1);
-  state_.free_last.assign(n, 0);
-  state_.free_pose.assign(n, Pose{});
-  state_.pair_axis.resize(np);
-  state_.pair_axis_overlap.resize(np);
-  state_.pair_flipped.resize(np);
-  state_.pair_key.resize(np);
-  state_.pair_sort.resize(np);
-  state_.memory_key.resize(np);
-  state_.memory_axis.resize(np);
+  sc.free_last.assign(n, 0);
+  sc.free_pose.assign(n, Pose{});
+  sc.pair_axis.resize(np);
+  sc.pair_axis_overlap.resize(np);
+  sc.pair_flipped.resize(np);
+  sc.pair_key.resize(np);
+  sc.pair_sort.resize(np);
+  sc.memory_key.resize(np);
+  sc.memory_axis.resize(np);
 }
 
 void Session::set_trajectory(int b, const Trajectory* trajectory) {
