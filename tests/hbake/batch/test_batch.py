@@ -7,6 +7,7 @@ Bakes are tiny (1,280-triangle blobs, 60 coarse faces, 32 x 32 atlas, 1,000 samp
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -248,33 +249,50 @@ def test_examples_makefile_is_incremental(models, tmp_path):
 # The Dask executor on a real LocalCluster
 # --------------------------------------------------------------------------
 
-@pytest.fixture(scope="module")
-def dask_cluster():
-    """A LocalCluster of two single-threaded worker processes under nannies (a killed
-    worker is restarted). allowed-failures 0: the scheduler gives up on a task at the
-    first worker death, so hbake's own resubmission is what the test sees;
-    worker-saturation 1.0: a worker holds one task at a time, so the quick job is never
-    queued on the worker that is killed."""
-    dask = pytest.importorskip("dask")
+@contextlib.contextmanager
+def local_cluster(n_workers: int):
+    """A LocalCluster of ``n_workers`` single-threaded worker processes under nannies, and
+    its client. The nannies set their pre-spawn environment (OMP_NUM_THREADS=1,
+    MALLOC_TRIM_THRESHOLD_, ...) in this process's os.environ before spawning a worker and
+    leave it there: every later test, and the programs it runs, would bake with one OpenMP
+    thread. The environment is put back when the cluster closes."""
     distributed = pytest.importorskip("distributed")
     import logging
 
-    # The nannies set their pre-spawn environment (OMP_NUM_THREADS=1, MALLOC_TRIM_THRESHOLD_,
-    # ...) in this process's os.environ before spawning a worker, and leave it there: every
-    # later test and the programs it runs would bake with one OpenMP thread. Restored after.
     saved = dict(os.environ)
+    cluster = distributed.LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=None, silence_logs=logging.ERROR)
+    client = distributed.Client(cluster)
+    try:
+        yield cluster, client
+    finally:
+        client.close()
+        cluster.close()
+        os.environ.clear()
+        os.environ.update(saved)
+
+
+@pytest.fixture(scope="module")
+def dask_cluster():
+    """Two workers (a killed worker is restarted by its nanny). allowed-failures 0: the
+    scheduler gives up on a task at the first worker death, so hbake's own resubmission is
+    what the test sees; worker-saturation 1.0: a worker holds one task at a time, so the
+    quick job is never queued on the worker that is killed."""
+    dask = pytest.importorskip("dask")
     with dask.config.set({"distributed.scheduler.allowed-failures": 0,
                           "distributed.scheduler.worker-saturation": 1.0}):
-        cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                           dashboard_address=None, silence_logs=logging.ERROR)
-        client = distributed.Client(cluster)
-        try:
+        with local_cluster(2) as (cluster, client):
             yield cluster, client
-        finally:
-            client.close()
-            cluster.close()
-            os.environ.clear()
-            os.environ.update(saved)
+
+
+def test_a_local_cluster_leaves_the_environment_as_it_found_it():
+    before = dict(os.environ)
+    with local_cluster(1) as (_, client):
+        # a worker exists, so its nanny has set its pre-spawn variables here
+        assert client.run(os.getpid)
+        if "OMP_NUM_THREADS" not in before:      # a value already set takes precedence
+            assert os.environ.get("OMP_NUM_THREADS") == "1", "distributed no longer sets it"
+    assert dict(os.environ) == before
 
 
 def _executing(dask_worker) -> tuple[int, list[str]]:
