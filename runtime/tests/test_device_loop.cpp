@@ -137,6 +137,28 @@ DeviceLoopOptions plain() {
 
 // Scale 2, offset rotated 30 degrees about z, grasp 5 cm along the probe's z
 // and turned 90 degrees about x; every number below written out by hand.
+// hrt/clock.h: a SessionClock reads the monotonic clock less its value at
+// construction, so a session starts at t = 0 and t follows the steady clock.
+TEST(Clock, SessionClockStartsAtZeroAndFollowsTheMonotonicClock) {
+  const hrt::SteadyClock steady;
+  const double s0 = steady.now();
+  const hrt::SessionClock session;
+  const double t0 = session.now();
+  EXPECT_GE(t0, 0.0);
+  EXPECT_LT(t0, 0.5);  // the construction and one read, whatever the machine's load
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  const double s1 = steady.now(), t1 = session.now();
+  EXPECT_GE(t1 - t0, 0.020);
+  // Both read CLOCK_MONOTONIC: the session's elapsed time is the steady clock's,
+  // less what passed before the session clock was made.
+  EXPECT_LE(t1, steady.now() - s0);
+  EXPECT_GE(t1, s1 - s0 - 0.5);
+  hrt::ManualClock manual;
+  manual.set(1.25);
+  manual.advance(0.001);
+  EXPECT_EQ(manual.now(), 1.25 + 0.001);
+}
+
 TEST(WorkspaceMap, ScaleOffsetAndGraspAgainstPosesComputedByHand) {
   const double c = std::sqrt(3.0) / 2, s = 0.5;  // cos, sin 30 degrees
   WorkspaceMap m;
